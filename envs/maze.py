@@ -1,0 +1,390 @@
+"""The maze UPOMDP (SPEC section 1): MiniGrid-style navigation on levels a teacher designs.
+
+Everything an algorithm script needs for the maze lives here: the level batch, the student env
+(all copies stepped at once with numpy), the teacher's MDP (PAIRED's adversary), the DR and empty-room
+generators, ACCEL's mutation, level metrics, rendering and the paper's networks. The 12 held-out test
+mazes are in `envs/maze_heldout.py`.
+
+Coordinates are (x, y): x the column from the left, y the row from the top, outer wall ring included.
+Directions: 0 east (+x), 1 south (+y), 2 west, 3 north.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+
+from envs.levels import HeldOutLevel, LevelBatch
+from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
+
+EMPTY, WALL, GOAL = 0, 1, 2
+# MiniGrid's (type, colour, state) encoding of each cell code; the networks divide it by 10.
+CELL_ENCODING = np.array([[1, 0, 0], [2, 5, 0], [8, 1, 0]], dtype=np.uint8)
+DIRECTION_VECTORS = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
+RANDOM_DIRECTION = -1
+VIEW_SIZE = 5
+NUM_ACTIONS = 7  # MiniGrid's: left, right, forward, pickup, drop, toggle, done
+LEFT, RIGHT, FORWARD = 0, 1, 2
+TURN = np.array([-1, 1, 0, 0, 0, 0, 0])
+TRAIN_SIZE = 15
+TRAIN_MAX_STEPS = 250
+BLOCK_BUDGETS = {"maze": 60, "maze25": 25}  # maze: uniform budget of 0-59 walls; maze25: 25 walls
+NOISE_DIM = 50
+
+
+@dataclasses.dataclass
+class MazeLevels(LevelBatch):
+    """A batch of mazes: walls [B, H, W] bool (outer ring included), goal and agent start [B, 2] as
+    (x, y), and the start direction [B] (RANDOM_DIRECTION: drawn at every episode start)."""
+
+    walls: np.ndarray
+    goal: np.ndarray
+    agent: np.ndarray
+    agent_dir: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.walls.shape[1], self.walls.shape[2]
+
+
+def empty_grid(n: int, size: int = TRAIN_SIZE) -> np.ndarray:
+    """n grids of size x size with only the outer wall ring."""
+    walls = np.zeros((n, size, size), dtype=bool)
+    walls[:, [0, -1], :] = True
+    walls[:, :, [0, -1]] = True
+    return walls
+
+
+def random_free_cells(free: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniformly random True cell per grid of free [B, H, W], as (x, y) [B, 2]."""
+    flat = np.where(free.reshape(len(free), -1), rng.random(free.reshape(len(free), -1).shape), -1.0)
+    index = flat.argmax(axis=1)
+    return np.stack([index % free.shape[2], index // free.shape[2]], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The teacher's MDP (SPEC 1, "Teacher MDP"): one interior cell per step, walls first, then goal, agent.
+# ---------------------------------------------------------------------------------------------------
+class MazeTeacherMDP:
+    """PAIRED's adversary MDP over n mazes at once, all stepping in lockstep.
+
+    Action a in [0, 169) is the interior cell x = a % 13 + 1, y = a // 13 + 1. With a fixed budget of
+    25 walls the episode has 27 steps: 25 walls, the goal, the agent. With the uniform 0-60 budget the
+    first action also sets n = int(a / 169 * 60) and is itself placed (a wall if n >= 1, else the goal);
+    then walls up to n, the goal, the agent, and the episode always lasts 62 steps (later actions are
+    no-ops). A wall on an occupied cell is a no-op; goal and agent clear a wall under them; an agent
+    placed on the goal moves to a uniformly random free cell.
+
+    Observation: the full grid image [n, H, W, 3] (uint8, MiniGrid encoding), the time step [n] and a
+    fresh noise vector [n, 50] of U[0, 1) numbers at every step.
+    """
+
+    def __init__(self, block_budget: int, uniform_budget: bool, rng: np.random.Generator, size: int = TRAIN_SIZE):
+        self.block_budget = block_budget
+        self.uniform_budget = uniform_budget
+        self.rng = rng
+        self.size = size
+        self.interior = size - 2
+        self.num_actions = self.interior**2
+        self.num_steps = block_budget + 2
+
+    def reset(self, n: int) -> dict:
+        self.n = n
+        self.t = 0
+        self.walls = empty_grid(n, self.size)
+        self.goal = np.zeros((n, 2), dtype=np.int64)
+        self.agent = np.zeros((n, 2), dtype=np.int64)
+        self.budget = np.full(n, self.block_budget, dtype=np.int64)
+        return self._observation()
+
+    def step(self, actions) -> tuple[dict, bool]:
+        """Place one cell per teacher; returns (observation, done). done is True after the last step."""
+        a = np.asarray(actions, dtype=np.int64)
+        x, y = a % self.interior + 1, a // self.interior + 1
+        index = np.arange(self.n)
+        if self.uniform_budget and self.t == 0:
+            self.budget = a * self.block_budget // self.num_actions  # int(a / 169 * 60), exact in integers
+        place_wall = self.t < self.budget
+        place_goal = self.t == self.budget
+        place_agent = self.t == self.budget + 1
+        self.walls[index[place_wall], y[place_wall], x[place_wall]] = True
+        self.walls[index[place_goal], y[place_goal], x[place_goal]] = False
+        self.goal[place_goal] = np.stack([x, y], axis=1)[place_goal]
+        self.walls[index[place_agent], y[place_agent], x[place_agent]] = False
+        self.agent[place_agent] = np.stack([x, y], axis=1)[place_agent]
+        on_goal = place_agent & np.all(self.agent == self.goal, axis=1)
+        if on_goal.any():
+            free = ~self.walls[on_goal]
+            free[np.arange(len(free)), self.goal[on_goal, 1], self.goal[on_goal, 0]] = False
+            self.agent[on_goal] = random_free_cells(free, self.rng)
+        self.t += 1
+        return self._observation(), self.t >= self.num_steps
+
+    def levels(self) -> MazeLevels:
+        return MazeLevels(self.walls.copy(), self.goal.copy(), self.agent.copy(), np.full(self.n, RANDOM_DIRECTION, np.int8))
+
+    def _observation(self) -> dict:
+        codes = self.walls.astype(np.uint8)
+        if self.t > 0:
+            placed = self.t > self.budget
+            codes[np.arange(self.n)[placed], self.goal[placed, 1], self.goal[placed, 0]] = GOAL
+        return {
+            "image": CELL_ENCODING[codes],
+            "time": np.full(self.n, min(self.t, self.num_steps - 1), dtype=np.int64),
+            "noise": self.rng.random((self.n, NOISE_DIM), dtype=np.float32),
+        }
+
+
+# ---------------------------------------------------------------------------------------------------
+# Level metrics (SPEC 1): walls, passable, shortest path length by BFS (interior cells + 1 if none).
+# ---------------------------------------------------------------------------------------------------
+def shortest_path_lengths(levels: MazeLevels) -> np.ndarray:
+    """BFS moves from agent to goal (4-connected) for every level at once; (H-2)*(W-2)+1 if impassable."""
+    n, h, w = levels.walls.shape
+    free = ~levels.walls
+    index = np.arange(n)
+    reached = np.zeros_like(free)
+    reached[index, levels.agent[:, 1], levels.agent[:, 0]] = True
+    frontier = reached.copy()
+    unreachable = (h - 2) * (w - 2) + 1
+    lengths = np.full(n, unreachable, dtype=np.int64)
+    active = np.ones(n, dtype=bool)
+    for distance in range(1, unreachable):
+        grown = np.zeros_like(frontier)
+        grown[:, 1:, :] |= frontier[:, :-1, :]
+        grown[:, :-1, :] |= frontier[:, 1:, :]
+        grown[:, :, 1:] |= frontier[:, :, :-1]
+        grown[:, :, :-1] |= frontier[:, :, 1:]
+        frontier = grown & free & ~reached
+        reached |= frontier
+        hit = active & frontier[index, levels.goal[:, 1], levels.goal[:, 0]]
+        lengths[hit] = distance
+        active &= ~hit & frontier.reshape(n, -1).any(axis=1)
+        if not active.any():
+            break
+    return lengths
+
+
+def level_metrics(levels: MazeLevels) -> dict[str, np.ndarray]:
+    lengths = shortest_path_lengths(levels)
+    h, w = levels.size
+    return {
+        "walls": levels.walls[:, 1:-1, 1:-1].sum(axis=(1, 2)),
+        "passable": lengths <= (h - 2) * (w - 2),
+        "path_length": lengths,
+    }
+
+
+# ---------------------------------------------------------------------------------------------------
+# Rendering: levels (and optionally an agent's visited cells) to RGB arrays.
+# ---------------------------------------------------------------------------------------------------
+TILE = 8
+COLOURS = np.array([[20, 20, 20], [128, 128, 128], [40, 200, 60], [70, 110, 220]], dtype=np.uint8)  # empty, wall, goal, path
+AGENT_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
+
+
+def render_levels(levels: MazeLevels, visited: np.ndarray | None = None) -> np.ndarray:
+    """RGB images [B, H*8, W*8, 3]: walls grey, goal green, agent start red, visited cells [B, H, W] blue."""
+    codes = levels.walls.astype(np.int64)
+    if visited is not None:
+        codes[visited & ~levels.walls] = 3
+    index = np.arange(len(levels))
+    codes[index, levels.goal[:, 1], levels.goal[:, 0]] = GOAL
+    images = np.repeat(np.repeat(COLOURS[codes], TILE, axis=1), TILE, axis=2)
+    inset = np.arange(2, TILE - 2)
+    rows = levels.agent[:, 1, None, None] * TILE + inset[None, :, None]
+    cols = levels.agent[:, 0, None, None] * TILE + inset[None, None, :]
+    images[index[:, None, None], rows, cols] = AGENT_COLOUR
+    return images
+
+
+# ---------------------------------------------------------------------------------------------------
+# The student env: every copy plays its own level; an ended episode restarts the same level.
+# ---------------------------------------------------------------------------------------------------
+class MazeEnv:
+    """The maze UPOMDP over `num_envs` copies, stepped together with numpy.
+
+    Observation: {"image": uint8 [N, 5, 5, 3], "direction": int64 [N]}. The image is the 5x5 square in
+    front of the agent (row 0 farthest, row 4 the agent's row, the agent in column 2, looking up), seen
+    through walls; cells outside the grid read as walls, the agent's own cell as empty.
+    Action: Discrete(7); only left, right and forward act. Reward: 1 - 0.9 * t / max_steps on reaching
+    the goal (t the 1-based step count of the episode), else 0. At max_steps the episode is truncated.
+    Either way the copy restarts its level at once, with a new random start direction.
+    """
+
+    def __init__(self, name: str = "maze", num_envs: int = 32, seed: int = 0):
+        if name not in BLOCK_BUDGETS:
+            raise ValueError(f"unknown maze setting {name!r}: expected one of {sorted(BLOCK_BUDGETS)}")
+        self.name = name
+        self.num_envs = num_envs
+        self.block_budget = BLOCK_BUDGETS[name]
+        self.uniform_budget = name == "maze"
+        self.rng = np.random.default_rng(seed)
+        self.single_observation_space = gym.spaces.Dict(
+            {
+                "image": gym.spaces.Box(0, 255, (VIEW_SIZE, VIEW_SIZE, 3), np.uint8),
+                "direction": gym.spaces.Discrete(4),
+            }
+        )
+        self.single_action_space = gym.spaces.Discrete(NUM_ACTIONS)
+        self.Student = MazeStudent
+        self.Teacher = MazeTeacher
+
+    # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------------
+    def teacher(self) -> MazeTeacherMDP:
+        return MazeTeacherMDP(self.block_budget, self.uniform_budget, self.rng)
+
+    def random_levels(self, n: int, rng: np.random.Generator) -> MazeLevels:
+        """The DR generator: a uniformly random teacher run through the teacher MDP's placement rules."""
+        mdp = MazeTeacherMDP(self.block_budget, self.uniform_budget, rng)
+        mdp.reset(n)
+        for _ in range(mdp.num_steps):
+            mdp.step(rng.integers(0, mdp.num_actions, n))
+        return mdp.levels()
+
+    def empty_levels(self, n: int, rng: np.random.Generator) -> MazeLevels:
+        """ACCEL's "empty" generator: no walls, goal and agent on two distinct random interior cells."""
+        cells = np.argsort(rng.random((n, (TRAIN_SIZE - 2) ** 2)), axis=1)[:, :2]
+        xy = np.stack([cells % (TRAIN_SIZE - 2) + 1, cells // (TRAIN_SIZE - 2) + 1], axis=2)
+        return MazeLevels(empty_grid(n), xy[:, 0], xy[:, 1], np.full(n, RANDOM_DIRECTION, np.int8))
+
+    def mutate(self, levels: MazeLevels, rng: np.random.Generator, num_edits: int = 5) -> MazeLevels:
+        """ACCEL's maze editor: `num_edits` random edits per level, each setting one random interior
+        cell to wall, empty, goal or agent. An edit that would put a wall on the goal or agent, or the
+        goal on the agent (or the reverse), is skipped, so every child keeps exactly one goal and one
+        agent start, on different free cells."""
+        child = levels.copy()
+        n, h, w = child.walls.shape
+        index = np.arange(n)
+        for _ in range(num_edits):
+            x = rng.integers(1, w - 1, n)
+            y = rng.integers(1, h - 1, n)
+            kind = rng.integers(0, 4, n)
+            on_goal = (x == child.goal[:, 0]) & (y == child.goal[:, 1])
+            on_agent = (x == child.agent[:, 0]) & (y == child.agent[:, 1])
+            wall = (kind == 0) & ~on_goal & ~on_agent
+            clear = (kind == 1) | ((kind == 2) & ~on_agent) | ((kind == 3) & ~on_goal)
+            child.walls[index[wall], y[wall], x[wall]] = True
+            child.walls[index[clear], y[clear], x[clear]] = False
+            move_goal = (kind == 2) & ~on_agent
+            move_agent = (kind == 3) & ~on_goal
+            child.goal[move_goal] = np.stack([x, y], axis=1)[move_goal]
+            child.agent[move_agent] = np.stack([x, y], axis=1)[move_agent]
+        return child
+
+    def test_levels(self) -> dict[str, HeldOutLevel]:
+        from envs.maze_heldout import held_out_mazes
+
+        return held_out_mazes()
+
+    level_metrics = staticmethod(level_metrics)
+    render = staticmethod(render_levels)
+
+    # --- the vectorized student env ---------------------------------------------------------------
+    def reset(self, levels: MazeLevels, max_steps: int = TRAIN_MAX_STEPS) -> dict:
+        """Copy i now plays levels[i]; returns the first observations."""
+        if len(levels) != self.num_envs:
+            raise ValueError(f"reset got {len(levels)} levels for {self.num_envs} env copies")
+        h, w = levels.size
+        pad = VIEW_SIZE - 1
+        self.height, self.width = h + 2 * pad, w + 2 * pad
+        self.max_steps = max_steps
+        codes = np.full((self.num_envs, self.height, self.width), WALL, dtype=np.uint8)
+        codes[:, pad : pad + h, pad : pad + w] = levels.walls
+        index = np.arange(self.num_envs)
+        codes[index, levels.goal[:, 1] + pad, levels.goal[:, 0] + pad] = GOAL
+        # Flat indices: a cell (x, y) of copy i is codes_flat[base[i] + (y + pad) * width + x + pad].
+        self.codes = codes.reshape(-1)
+        self.base = index * self.height * self.width
+        self.start = (levels.agent[:, 1] + pad) * self.width + levels.agent[:, 0] + pad
+        self.start_dir = levels.agent_dir.astype(np.int64)
+        self.move = DIRECTION_VECTORS[:, 0] + DIRECTION_VECTORS[:, 1] * self.width
+        forward = np.arange(VIEW_SIZE - 1, -1, -1)[:, None]  # row 0 is the farthest
+        lateral = np.arange(VIEW_SIZE)[None, :] - VIEW_SIZE // 2
+        fx, fy = DIRECTION_VECTORS[:, 0, None, None], DIRECTION_VECTORS[:, 1, None, None]
+        rx, ry = -fy, fx  # the agent's right
+        self.view = ((forward * fx + lateral * rx) + (forward * fy + lateral * ry) * self.width).reshape(4, -1)
+        self.pos = self.start.copy()
+        self.dir = np.zeros(self.num_envs, dtype=np.int64)
+        self.t = np.zeros(self.num_envs, dtype=np.int64)
+        self._restart(np.ones(self.num_envs, dtype=bool))
+        return self._observation()
+
+    def step(self, actions):
+        a = np.asarray(actions)
+        self.dir = (self.dir + TURN[a]) & 3
+        target = self.pos + self.move[self.dir]
+        cell = self.codes[self.base + target]
+        moved = (a == FORWARD) & (cell != WALL)
+        self.pos = np.where(moved, target, self.pos)
+        self.t += 1
+        terminated = moved & (cell == GOAL)
+        reward = np.where(terminated, 1.0 - 0.9 * self.t / self.max_steps, 0.0).astype(np.float32)
+        truncated = (self.t >= self.max_steps) & ~terminated
+        done = terminated | truncated
+        if done.any():
+            self._restart(done)
+        return self._observation(), reward, terminated, truncated, {}
+
+    def agent_positions(self) -> np.ndarray:
+        """Current (x, y) of every copy, for drawing paths."""
+        pad = VIEW_SIZE - 1
+        return np.stack([self.pos % self.width - pad, self.pos // self.width - pad], axis=1)
+
+    def _restart(self, done: np.ndarray) -> None:
+        self.pos[done] = self.start[done]
+        fixed = self.start_dir[done]
+        self.dir[done] = np.where(fixed >= 0, fixed, self.rng.integers(0, 4, len(fixed)))
+        self.t[done] = 0
+
+    def _observation(self) -> dict:
+        cells = self.codes[(self.base + self.pos)[:, None] + self.view[self.dir]]
+        cells[:, -1 - VIEW_SIZE // 2] = EMPTY  # the agent's own cell
+        return {"image": CELL_ENCODING[cells].reshape(self.num_envs, VIEW_SIZE, VIEW_SIZE, 3), "direction": self.dir.copy()}
+
+
+# ---------------------------------------------------------------------------------------------------
+# Networks (SPEC 1, "Networks (maze)"), with the calling convention of DESIGN.md.
+# ---------------------------------------------------------------------------------------------------
+class MazeStudent(RecurrentCategoricalActorCritic):
+    """Conv 3->16 (3x3) on the 5x5 view -> 144, ReLU; direction one-hot -> Linear 5; LSTM 256;
+    actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1."""
+
+    def __init__(self, hidden_size: int = 256):
+        super().__init__()
+        self.conv = nn.Sequential(layer_init(nn.Conv2d(3, 16, 3)), nn.ReLU(), nn.Flatten())
+        self.direction_embed = layer_init(nn.Linear(4, 5))
+        self.lstm = ResettableLSTM(16 * 3 * 3 + 5, hidden_size)
+        self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, NUM_ACTIONS), gain=0.01))
+        self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
+
+    def _hidden(self, obs: dict, state, done):
+        image = obs["image"].permute(0, 3, 1, 2).float() / 10.0
+        direction = nn.functional.one_hot(obs["direction"].long(), 4).float()
+        features = torch.cat([self.conv(image), self.direction_embed(direction)], dim=1)
+        return self.lstm(features, state, done)
+
+
+class MazeTeacher(RecurrentCategoricalActorCritic):
+    """Conv 3->128 (3x3) on the 15x15 grid -> 21632, ReLU; time one-hot -> Linear 10; noise (50);
+    LSTM 256; actor 256 -> 32 tanh -> 169 logits; critic 256 -> 32 tanh -> 1."""
+
+    def __init__(self, num_steps: int, size: int = TRAIN_SIZE, hidden_size: int = 256):
+        super().__init__()
+        self.num_steps = num_steps
+        self.conv = nn.Sequential(layer_init(nn.Conv2d(3, 128, 3)), nn.ReLU(), nn.Flatten())
+        self.time_embed = layer_init(nn.Linear(num_steps, 10))
+        self.lstm = ResettableLSTM(128 * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size)
+        num_actions = (size - 2) ** 2
+        self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, num_actions), gain=0.01))
+        self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
+
+    def _hidden(self, obs: dict, state, done):
+        image = obs["image"].permute(0, 3, 1, 2).float() / 10.0
+        time = nn.functional.one_hot(obs["time"].long(), self.num_steps).float()
+        features = torch.cat([self.conv(image), self.time_embed(time), obs["noise"].float()], dim=1)
+        return self.lstm(features, state, done)

@@ -1,0 +1,127 @@
+"""Network parts shared by the envs' networks: layer init and an LSTM that resets at episode starts.
+
+Every network of `envs` follows one calling convention (DESIGN.md), so an algorithm script does not care
+which env it runs. Inputs are flattened time-major batches: a rollout step is T=1 row per env copy, a
+training sequence is T rows per copy laid out as [T * N] (row t * N + n is step t of copy n).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.distributions import Categorical
+
+
+def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) -> nn.Module:
+    """Orthogonal weights, constant bias (SPEC 1: gain sqrt(2) hidden, 0.01 policy, 1 value)."""
+    nn.init.orthogonal_(layer.weight, gain)
+    nn.init.constant_(layer.bias, bias)
+    return layer
+
+
+# Segments whose lengths are within this factor of each other share one padded nn.LSTM call: the
+# padding waste stays under 1/factor while the number of calls stays small (measured best on CPU).
+BUCKET_LENGTH_FACTOR = 0.75
+
+
+class ResettableLSTM(nn.Module):
+    """An LSTM whose state is zeroed before every step marked `done` (the first step of an episode).
+
+    `forward(x, state, done)` takes x [T * N, F], state (h, c) each [1, N, H] and done [T * N].
+    For T = 1 (acting in a rollout) it is one LSTM step and returns the new state. For T > 1 (training on
+    a whole rollout) every episode segment becomes a row of its own, zero-initialised except the first
+    segment of each copy, which starts from `state`; segments of similar length are padded into one
+    batch and run by one fused `nn.LSTM` call, and the valid steps are gathered back. This computes the
+    same outputs as stepping T times (tests/test_nets.py checks it) several times faster on CPU. The
+    state after a training sequence is never needed, so that path returns None for it.
+    """
+
+    def __init__(self, input_size: int, hidden_size: int):
+        super().__init__()
+        self.hidden_size = hidden_size
+        self.lstm = nn.LSTM(input_size, hidden_size)
+        for name, param in self.lstm.named_parameters():
+            if "bias" in name:
+                nn.init.constant_(param, 0.0)
+            else:
+                nn.init.orthogonal_(param, 1.0)
+
+    def initial_state(self, n: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+        zeros = torch.zeros(1, n, self.hidden_size, device=device)
+        return zeros, zeros.clone()
+
+    def forward(self, x: torch.Tensor, state, done: torch.Tensor):
+        num_copies = state[0].shape[1]
+        steps = x.shape[0] // num_copies
+        if steps == 1:
+            keep = (1.0 - done.float()).view(1, num_copies, 1)
+            out, new_state = self.lstm(x.unsqueeze(0), (state[0] * keep, state[1] * keep))
+            return out[0], new_state
+        out = self._run_segments(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool())
+        return out.reshape(steps * num_copies, self.hidden_size), None
+
+    def _run_segments(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
+        steps, num_copies, _ = x.shape
+        device = x.device
+        # Copy-major order: position k = n * steps + t, so each segment is a contiguous run of k.
+        starts = done.clone()
+        starts[0] = True
+        starts = starts.t().reshape(-1)
+        x = x.transpose(0, 1).reshape(steps * num_copies, -1)
+        segment_of = torch.cumsum(starts.long(), 0) - 1
+        segment_start = torch.nonzero(starts).squeeze(1)
+        segment_length = torch.diff(segment_start, append=torch.tensor([steps * num_copies], device=device))
+        offset = torch.arange(steps * num_copies, device=device) - segment_start[segment_of]
+
+        # Initial state per segment: the given state for a copy's first segment (unless it starts an
+        # episode), zero for every later segment.
+        num_segments = len(segment_start)
+        first_segment = segment_of[torch.arange(num_copies, device=device) * steps]
+        keep = (1.0 - done[0].float()).unsqueeze(1)
+        h0 = torch.zeros(num_segments, self.hidden_size, device=device).index_put((first_segment,), state[0][0] * keep)
+        c0 = torch.zeros(num_segments, self.hidden_size, device=device).index_put((first_segment,), state[1][0] * keep)
+
+        longest = segment_length.max().float()
+        bucket = torch.floor(torch.log(longest / segment_length.float()) / -math.log(BUCKET_LENGTH_FACTOR)).long()
+        out = x.new_zeros(steps * num_copies, self.hidden_size)
+        for b in torch.unique(bucket).tolist():
+            in_bucket = bucket == b
+            members = torch.nonzero(in_bucket).squeeze(1)
+            row_of_segment = torch.cumsum(in_bucket.long(), 0) - 1
+            step_mask = in_bucket[segment_of]
+            rows = row_of_segment[segment_of[step_mask]]
+            cols = offset[step_mask]
+            padded_length = int(segment_length[members].max())
+            padded = x.new_zeros(padded_length, len(members), x.shape[1]).index_put((cols, rows), x[step_mask])
+            bucket_out, _ = self.lstm(padded, (h0[members].unsqueeze(0), c0[members].unsqueeze(0)))
+            out = out.index_put((torch.nonzero(step_mask).squeeze(1),), bucket_out[cols, rows])
+        return out.view(num_copies, steps, self.hidden_size).transpose(0, 1)
+
+
+class RecurrentCategoricalActorCritic(nn.Module):
+    """The calling convention of every network, for a recurrent net with a discrete policy.
+
+    A subclass defines `self.lstm` (a ResettableLSTM), `self.actor` (hidden -> logits), `self.critic`
+    (hidden -> 1) and `_hidden(obs, state, done) -> (hidden, state)`.
+    """
+
+    def initial_state(self, n: int, device=None):
+        return self.lstm.initial_state(n, device)
+
+    def dist(self, obs: dict, state, done) -> Categorical:
+        hidden, _ = self._hidden(obs, state, done)
+        return Categorical(logits=self.actor(hidden))
+
+    def get_value(self, obs: dict, state, done) -> torch.Tensor:
+        hidden, _ = self._hidden(obs, state, done)
+        return self.critic(hidden).squeeze(-1)
+
+    def get_action_and_value(self, obs: dict, state, done, action=None):
+        """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
+        hidden, state = self._hidden(obs, state, done)
+        dist = Categorical(logits=self.actor(hidden))
+        if action is None:
+            action = dist.sample()
+        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1), state
