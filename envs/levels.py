@@ -24,6 +24,7 @@ class LevelBatch:
         return type(self)(**{f.name: getattr(self, f.name)[index] for f in dataclasses.fields(self)})
 
     def __setitem__(self, index, other) -> None:
+        index = np.atleast_1d(index) if np.isscalar(index) else index
         for f in dataclasses.fields(self):
             getattr(self, f.name)[index] = getattr(other, f.name)
 

@@ -152,7 +152,8 @@ def shortest_path_lengths(levels: MazeLevels) -> np.ndarray:
     frontier = reached.copy()
     unreachable = (h - 2) * (w - 2) + 1
     lengths = np.full(n, unreachable, dtype=np.int64)
-    active = np.ones(n, dtype=bool)
+    active = np.any(levels.agent != levels.goal, axis=1)
+    lengths[~active] = 0
     for distance in range(1, unreachable):
         grown = np.zeros_like(frontier)
         grown[:, 1:, :] |= frontier[:, :-1, :]
@@ -231,8 +232,11 @@ class MazeEnv:
             }
         )
         self.single_action_space = gym.spaces.Discrete(NUM_ACTIONS)
+        self.Levels = MazeLevels
         self.Student = MazeStudent
         self.Teacher = MazeTeacher
+        self.solved_threshold = 0.0  # solved = return > 0 (SPEC 5)
+        self.validation_levels = ("SixteenRooms", "Labyrinth", "Maze")  # the paper's validation mazes
 
     # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------------
     def teacher(self) -> MazeTeacherMDP:
