@@ -60,45 +60,46 @@ class ResettableLSTM(nn.Module):
             lstm = self.lstm
             h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
-        out = self._run_segments(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool())
-        return out.reshape(steps * num_copies, self.hidden_size), None
+        return self._run_segments(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
 
     def _run_segments(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
-        steps, num_copies, _ = x.shape
+        steps, num_copies = done.shape
         device = x.device
-        # Copy-major order: position k = n * steps + t, so each segment is a contiguous run of k.
+        # Segments in copy-major order (position k = n * steps + t): each is a contiguous run of k.
         starts = done.clone()
         starts[0] = True
         starts = starts.t().reshape(-1)
-        x = x.transpose(0, 1).reshape(steps * num_copies, -1)
-        segment_of = torch.cumsum(starts.long(), 0) - 1
         segment_start = torch.nonzero(starts).squeeze(1)
         segment_length = torch.diff(segment_start, append=torch.tensor([steps * num_copies], device=device))
-        offset = torch.arange(steps * num_copies, device=device) - segment_start[segment_of]
-
+        segment_copy, segment_t0 = segment_start // steps, segment_start % steps
         # Initial state per segment: the given state for a copy's first segment (unless it starts an
-        # episode), zero for every later segment.
-        num_segments = len(segment_start)
-        first_segment = segment_of[torch.arange(num_copies, device=device) * steps]
-        keep = (1.0 - done[0].float()).unsqueeze(1)
-        h0 = torch.zeros(num_segments, self.hidden_size, device=device).index_put((first_segment,), state[0][0] * keep)
-        c0 = torch.zeros(num_segments, self.hidden_size, device=device).index_put((first_segment,), state[1][0] * keep)
+        # episode), zero for every later segment (index 0 of the padded states below is zero).
+        first = (segment_t0 == 0) & ~done[0, segment_copy]
+        state_source = torch.where(first, segment_copy + 1, 0)
+        h_all = torch.cat([x.new_zeros(1, self.hidden_size), state[0][0]])[state_source]
+        c_all = torch.cat([x.new_zeros(1, self.hidden_size), state[1][0]])[state_source]
 
+        # Bucket segments by length; pad each bucket into one [length, segments] batch gathered from
+        # the time-major rows of x (row steps * num_copies is a zero row for the padding).
+        x_rows = torch.cat([x.reshape(steps * num_copies, -1), x.new_zeros(1, x.shape[2])])
         longest = segment_length.max().float()
         bucket = torch.floor(torch.log(longest / segment_length.float()) / -math.log(BUCKET_LENGTH_FACTOR)).long()
-        out = x.new_zeros(steps * num_copies, self.hidden_size)
+        outputs, position_of_row, used = [], torch.empty(steps * num_copies, dtype=torch.long, device=device), 0
         for b in torch.unique(bucket).tolist():
-            in_bucket = bucket == b
-            members = torch.nonzero(in_bucket).squeeze(1)
-            row_of_segment = torch.cumsum(in_bucket.long(), 0) - 1
-            step_mask = in_bucket[segment_of]
-            rows = row_of_segment[segment_of[step_mask]]
-            cols = offset[step_mask]
-            padded_length = int(segment_length[members].max())
-            padded = x.new_zeros(padded_length, len(members), x.shape[1]).index_put((cols, rows), x[step_mask])
-            bucket_out, _ = self.lstm(padded, (h0[members].unsqueeze(0), c0[members].unsqueeze(0)))
-            out = out.index_put((torch.nonzero(step_mask).squeeze(1),), bucket_out[cols, rows])
-        return out.view(num_copies, steps, self.hidden_size).transpose(0, 1)
+            members = torch.nonzero(bucket == b).squeeze(1)
+            length = segment_length[members]
+            padded_length = int(length.max())
+            t = torch.arange(padded_length, device=device).unsqueeze(1)
+            valid = t < length.unsqueeze(0)
+            rows = (segment_t0[members].unsqueeze(0) + t) * num_copies + segment_copy[members].unsqueeze(0)
+            rows = torch.where(valid, rows, steps * num_copies)
+            padded = x_rows[rows.reshape(-1)].view(padded_length, len(members), -1)
+            bucket_out, _ = self.lstm(padded, (h_all[members].unsqueeze(0), c_all[members].unsqueeze(0)))
+            outputs.append(bucket_out.reshape(-1, self.hidden_size))
+            slots = torch.arange(used, used + rows.numel(), device=device).view_as(rows)
+            position_of_row[rows[valid]] = slots[valid]
+            used += rows.numel()
+        return torch.cat(outputs)[position_of_row]
 
 
 class RecurrentCategoricalActorCritic(nn.Module):
@@ -122,7 +123,10 @@ class RecurrentCategoricalActorCritic(nn.Module):
     def get_action_and_value(self, obs: dict, state, done, action=None):
         """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
         hidden, state = self._hidden(obs, state, done)
-        dist = Categorical(logits=self.actor(hidden))
+        log_probs = torch.log_softmax(self.actor(hidden), dim=-1)  # Categorical's maths, minus its overhead
+        probs = log_probs.exp()
         if action is None:
-            action = dist.sample()
-        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1), state
+            action = torch.multinomial(probs, 1).squeeze(-1)
+        entropy = -(probs * log_probs).sum(-1)
+        logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
+        return action, logprob, entropy, self.critic(hidden).squeeze(-1), state
