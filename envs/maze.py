@@ -375,14 +375,16 @@ class MazeStudent(RecurrentCategoricalActorCritic):
 
 class MazeTeacher(RecurrentCategoricalActorCritic):
     """Conv 3->128 (3x3) on the 15x15 grid -> 21632, ReLU; time one-hot -> Linear 10; noise (50);
-    LSTM 256; actor 256 -> 32 tanh -> 169 logits; critic 256 -> 32 tanh -> 1."""
+    LSTM 256; actor 256 -> 32 tanh -> 169 logits; critic 256 -> 32 tanh -> 1. `conv_channels` below
+    the paper's 128 gives a lighter teacher (its LSTM input shrinks in proportion)."""
 
-    def __init__(self, num_steps: int, size: int = TRAIN_SIZE, hidden_size: int = 256):
+    def __init__(self, num_steps: int, size: int = TRAIN_SIZE, hidden_size: int = 256, conv_channels: int = 128):
         super().__init__()
         self.num_steps = num_steps
-        self.conv = nn.Sequential(layer_init(nn.Conv2d(3, 128, 3)), nn.ReLU(), nn.Flatten())
+        self.conv = nn.Sequential(layer_init(nn.Conv2d(3, conv_channels, 3)), nn.ReLU(), nn.Flatten())
         self.time_embed = layer_init(nn.Linear(num_steps, 10))
-        self.lstm = ResettableLSTM(128 * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size)
+        # Its 21692-wide input makes the input projection dominate: project all steps at once.
+        self.lstm = ResettableLSTM(conv_channels * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size, project_inputs_first=True)
         num_actions = (size - 2) ** 2
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, num_actions), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))

@@ -34,13 +34,16 @@ class ResettableLSTM(nn.Module):
     a whole rollout) every episode segment becomes a row of its own, zero-initialised except the first
     segment of each copy, which starts from `state`; segments of similar length are padded into one
     batch and run by one fused `nn.LSTM` call, and the valid steps are gathered back. This computes the
-    same outputs as stepping T times (tests/test_nets.py checks it) several times faster on CPU. The
-    state after a training sequence is never needed, so that path returns None for it.
+    same outputs as stepping T times (tests/test_nets.py checks it) several times faster on CPU. With
+    `project_inputs_first`, the T > 1 path instead projects all inputs in one matmul and loops over the
+    steps for the recurrence only: faster when the input is far wider than the state. The state after a
+    training sequence is never needed, so both paths return None for it.
     """
 
-    def __init__(self, input_size: int, hidden_size: int):
+    def __init__(self, input_size: int, hidden_size: int, project_inputs_first: bool = False):
         super().__init__()
         self.hidden_size = hidden_size
+        self.project_inputs_first = project_inputs_first
         self.lstm = nn.LSTM(input_size, hidden_size)
         for name, param in self.lstm.named_parameters():
             if "bias" in name:
@@ -60,7 +63,26 @@ class ResettableLSTM(nn.Module):
             lstm = self.lstm
             h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
+        if self.project_inputs_first:
+            return self._run_projected(x, state, done.view(steps, num_copies, 1)), None
         return self._run_segments(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
+
+    def _run_projected(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
+        """For very wide inputs (the maze teacher's 21692): the input projection of all steps as one
+        large matmul, then the small recurrence step by step (PyTorch's gate order i, f, g, o)."""
+        lstm = self.lstm
+        steps, num_copies, _ = done.shape
+        projected = nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0).view(steps, num_copies, -1)
+        keep = 1.0 - done.float()
+        h, c = state[0][0], state[1][0]
+        outputs = []
+        for t in range(steps):
+            h, c = h * keep[t], c * keep[t]
+            i, f, g, o = torch.addmm(projected[t], h, lstm.weight_hh_l0.t()).chunk(4, 1)
+            c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+            h = torch.sigmoid(o) * torch.tanh(c)
+            outputs.append(h)
+        return torch.stack(outputs).view(steps * num_copies, self.hidden_size)
 
     def _run_segments(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
         steps, num_copies = done.shape
@@ -115,6 +137,11 @@ class RecurrentCategoricalActorCritic(nn.Module):
     def dist(self, obs: dict, state, done) -> Categorical:
         hidden, _ = self._hidden(obs, state, done)
         return Categorical(logits=self.actor(hidden))
+
+    def dist_and_value(self, obs: dict, state, done):
+        """-> the policy distribution and the value, from one pass (for losses that need both)."""
+        hidden, _ = self._hidden(obs, state, done)
+        return Categorical(logits=self.actor(hidden)), self.critic(hidden).squeeze(-1)
 
     def get_value(self, obs: dict, state, done) -> torch.Tensor:
         hidden, _ = self._hidden(obs, state, done)

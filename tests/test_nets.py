@@ -56,3 +56,18 @@ def test_reset_zeroes_state():
     out_carry, _ = lstm(x, state, torch.zeros(2))
     assert torch.allclose(out_reset, out_fresh)
     assert not torch.allclose(out_reset, out_carry)
+
+
+def test_projected_path_equals_step_loop_with_resets():
+    torch.manual_seed(3)
+    lstm = ResettableLSTM(9, 12, project_inputs_first=True)
+    steps, copies = 15, 3
+    x = torch.randn(steps * copies, 9, requires_grad=True)
+    done = (torch.rand(steps * copies) < 0.2).float()
+    state = (torch.randn(1, copies, 12), torch.randn(1, copies, 12))
+    fast, _ = lstm(x, state, done)
+    slow, _ = step_by_step(lstm, x, state, done, copies)
+    assert torch.allclose(fast, slow, atol=1e-5)
+    (grad_fast,) = torch.autograd.grad(fast.sum(), x)
+    (grad_slow,) = torch.autograd.grad(slow.sum(), x)
+    assert torch.allclose(grad_fast, grad_slow, atol=1e-5)
