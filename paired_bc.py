@@ -431,7 +431,7 @@ if __name__ == "__main__":
 
         if update % args.log_interval == 0:
             total = time_teacher_rollout + times["rollouts"] + times["updates"] + time_teacher_update
-            eta = (num_updates - update) * elapsed / (update - start_update + 1)
+            eta = (num_updates - update) * elapsed / update
             print(f"update {update}/{num_updates} | steps {global_step} | {row['sps']} steps/s | return P {row['protagonist_return']:.3f} "
                   f"A {row['antagonist_return']:.3f} | regret {row['regret']:.3f} | entropy T {row['teacher_entropy']:.2f} "
                   f"| walls {row['walls']:.1f} path {row['path_length']:.1f} | time: teacher rollout {time_teacher_rollout / total:.0%}, "

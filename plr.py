@@ -454,7 +454,7 @@ if __name__ == "__main__":
 
         if update % args.log_interval == 0:
             window_sps = window_steps / (time.time() - window_start)
-            eta = (num_updates - update) * elapsed / (update - start_update + 1) if update >= start_update else 0.0
+            eta = (num_updates - update) * elapsed / update
             print(f"update {update}/{num_updates} | steps {global_step} | {window_sps:.0f} steps/s | return {row['mean_return']:.3f} "
                   f"| solved {row['solved_rate']:.2f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} | ETA {eta / 60:.1f} min")
             window_start, window_steps = time.time(), 0
