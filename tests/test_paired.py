@@ -245,7 +245,6 @@ def test_ppo_update_with_clone_target_moves_the_cloner_toward_the_target():
         results[name] = (stats, kl_on(storage, target, agent, args.num_envs))
     kl_start = kl_on(storage, target, start, args.num_envs)
     (cloning_stats, kl_cloning), (plain_stats, kl_plain) = results["cloning"], results["plain"]
-    print(kl_start, cloning_stats, kl_cloning, plain_stats, kl_plain)
     assert cloning_stats["kl"] > 0.01 and plain_stats["kl"] == 0.0
     assert kl_cloning < 0.8 * kl_plain, (kl_start, kl_cloning, kl_plain)
     assert kl_cloning < 0.8 * kl_start

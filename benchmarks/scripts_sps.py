@@ -1,0 +1,63 @@
+"""End-to-end steps/s of every algorithm script at the paper's maze settings (32 envs x 256 steps, 5 epochs).
+
+Each script runs as a user would run it, in a temporary directory, for a few updates; the rate is read
+from its metrics.csv over the updates after the first (steps and time both cumulative there, evaluation
+excluded). Only the level buffer is shrunk (to 64 levels) so that replay updates start after two updates
+instead of ~60; a buffer's size does not change the cost of an update. For PAIRED the shares of the
+update spent in the teacher's rollout, the students' rollouts, their PPO updates and the teacher's update
+are printed too.
+
+    python benchmarks/scripts_sps.py [--updates 8] [--only accel.py ...]
+"""
+
+import argparse
+import csv
+import glob
+import os
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+QUIET = ["--eval-interval", "100000", "--eval-episodes", "1", "--levels-interval", "100000", "--checkpoint-interval", "100000"]
+BUFFER = ["--level-buffer-size", "64"]
+CASES = [
+    ("plr.py (Robust PLR)", "plr.py", BUFFER, "env steps"),
+    ("plr.py --replay-prob 0 (DR)", "plr.py", ["--replay-prob", "0"], "env steps"),
+    ("accel.py", "accel.py", BUFFER, "env steps, incl. edit evaluation"),
+    ("paired.py (paper's teacher)", "paired.py", [], "protagonist steps"),
+    ("paired.py --teacher-conv-channels 16", "paired.py", ["--teacher-conv-channels", "16"], "protagonist steps"),
+    ("paired_bc.py --bidirectional", "paired_bc.py", ["--bidirectional"], "protagonist steps"),
+    ("paired_evo.py", "paired_evo.py", BUFFER, "student steps, both students"),
+]
+
+parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+parser.add_argument("--updates", type=int, default=8, help="updates per script (the first is not timed)")
+parser.add_argument("--only", nargs="*", default=None, help="script names to run (default: all)")
+options = parser.parse_args()
+
+print(f"{'script':40s} {'steps/s':>9s}  counting")
+for label, script, extra, counting in CASES:
+    if options.only and script not in options.only:
+        continue
+    with tempfile.TemporaryDirectory() as tmp:
+        # PAIRED's budget counts protagonist steps; the others count every step they simulate.
+        steps = options.updates * 32 * 256
+        command = [sys.executable, os.path.join(ROOT, script), "--env", "maze", "--total-timesteps", str(steps), *QUIET, *extra]
+        result = subprocess.run(command, cwd=tmp, capture_output=True, text=True)
+        if result.returncode != 0:
+            print(f"{label:40s} failed: {result.stderr.strip().splitlines()[-1]}")
+            continue
+        with open(glob.glob(os.path.join(tmp, "runs", "*", "metrics.csv"))[0], newline="") as f:
+            rows = list(csv.DictReader(f))
+    step_column = "student_steps" if "student_steps" in rows[0] else "env_steps"
+    first, last = rows[0], rows[-1]
+    elapsed = lambda r: float(r[step_column]) / float(r["sps"])  # noqa: E731
+    rate = (float(last[step_column]) - float(first[step_column])) / (elapsed(last) - elapsed(first))
+    line = f"{label:40s} {rate:9.0f}  {counting}"
+    if "time_teacher_update" in rows[0]:
+        parts = ["time_teacher_rollout", "time_student_rollouts", "time_student_updates", "time_teacher_update"]
+        totals = {p: sum(float(r[p]) for r in rows[1:]) for p in parts}
+        total = sum(totals.values())
+        line += " | " + ", ".join(f"{p[5:]} {totals[p] / total:.0%}" for p in parts)
+    print(line, flush=True)
