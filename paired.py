@@ -121,9 +121,16 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
     for name, value in PAPER_DEFAULTS[args.env].items():
         if getattr(args, name) is None:
             setattr(args, name, value)
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
     if args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if min(args.student_ent_coef, args.teacher_ent_coef) < 0:

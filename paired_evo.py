@@ -150,17 +150,24 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
     for name, value in PAPER_DEFAULTS[args.env].items():
         if getattr(args, name) is None:
             setattr(args, name, value)
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
     if args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if args.replay_prob is None:
         args.replay_prob = 0.9 if args.flexible else 0.5
     if args.student_ent_coef < 0:
         fail("--student-ent-coef must be >= 0")
-    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0:
-        fail("--replay-prob and --staleness-coef must be in [0, 1]")
+    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
+        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
     if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
         fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
     if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):

@@ -133,13 +133,20 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
     for name, value in PAPER_DEFAULTS[args.env].items():
         if getattr(args, name) is None:
             setattr(args, name, value)
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
     if args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0:
-        fail("--replay-prob and --staleness-coef must be in [0, 1]")
+    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
+        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
     if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
         fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
     if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
@@ -439,7 +446,7 @@ if __name__ == "__main__":
                "trained": int(trained), "mean_return": np.mean(episode_returns) if episode_returns else 0.0,
                "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else 0.0,
                "episodes": len(episode_returns), "buffer_size": len(buffer),
-               "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": scores.mean(),
+               "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()}, **stats}
         if update % args.eval_interval == 0 or update == num_updates:
             agent.eval()

@@ -21,7 +21,15 @@ def to_torch(obs: dict, device) -> dict:
 @torch.no_grad()
 def evaluate(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
     """Returns of `episodes` first episodes of the agent on a HeldOutLevel (fresh draws of its random
-    parts, from `seed`)."""
+    parts, from `seed`). Actions are sampled from torch's generator forked and seeded here, so evaluating
+    never shifts the random stream of training."""
+    on_cuda = torch.device(device).type == "cuda"
+    with torch.random.fork_rng(devices=[torch.device(device)] if on_cuda else []):
+        torch.manual_seed(seed)
+        return _play_first_episodes(agent, env_name, level, episodes, seed, device)
+
+
+def _play_first_episodes(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
     env = envs.make(env_name, episodes, seed)
     obs = env.reset(level.generate(episodes, np.random.default_rng(seed)), level.max_steps)
     state = agent.initial_state(episodes, device)

@@ -328,7 +328,7 @@ def test_bad_arguments_exit_with_status_2(module, bad):
     assert exit_info.value.code == 2
 
 
-@pytest.mark.parametrize("script, args, message", [
+BAD_INPUT = [
     ("paired_bc.py", ["--kl-coef", "-1"], "--kl-coef"),
     ("paired_bc.py", ["--kl-interval", "0"], "--kl-interval"),
     ("paired_hient.py", ["--teacher-ent-coef", "-0.5"], "entropy"),
@@ -336,13 +336,26 @@ def test_bad_arguments_exit_with_status_2(module, bad):
     ("paired.py", ["--num-envs", "30", "--num-minibatches", "4"], "does not divide"),
     ("paired_bc.py", ["--env", "mars"], "unknown --env"),
     ("paired.py", ["--resume", "not-a-run"], "not a run directory"),
-])
-def test_bad_input_is_one_error_line_status_2_nothing_written(tmp_path, script, args, message):
-    result = run_script(script, args, tmp_path)
+]
+
+
+@pytest.fixture(scope="module")
+def bad_input_runs(tmp_path_factory):
+    """The BAD_INPUT commands, two at a time (each in its own empty directory): [(result, cwd)]."""
+    cwds = [tmp_path_factory.mktemp("bad") for _ in BAD_INPUT]
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        results = list(pool.map(lambda case: run_script(case[0][0], case[0][1], case[1]), zip(BAD_INPUT, cwds)))
+    return list(zip(results, cwds))
+
+
+@pytest.mark.parametrize("case", range(len(BAD_INPUT)), ids=[f"{s}-{' '.join(a)}" for s, a, _ in BAD_INPUT])
+def test_bad_input_is_one_error_line_status_2_nothing_written(bad_input_runs, case):
+    message = BAD_INPUT[case][2]
+    result, cwd = bad_input_runs[case]
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], result.stderr
-    assert not os.path.exists(tmp_path / "runs")
+    assert os.listdir(cwd) == []  # no runs/ directory, nothing at all
 
 
 @pytest.mark.parametrize("module, env, expected", [

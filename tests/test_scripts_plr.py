@@ -86,7 +86,8 @@ def test_killed_run_resumes_to_the_same_result(tmp_path):
     deadline = time.time() + 240
     while time.time() < deadline:
         runs = killed / "runs"
-        if runs.exists() and os.listdir(runs) and len(read_metrics(only_run_dir(killed))) >= 3:
+        ready = runs.exists() and os.listdir(runs) and os.path.isfile(os.path.join(only_run_dir(killed), "metrics.csv"))
+        if ready and len(read_metrics(only_run_dir(killed))) >= 3:
             break
         time.sleep(0.02)
     process.send_signal(signal.SIGKILL)
