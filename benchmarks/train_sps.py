@@ -28,7 +28,6 @@ options = parser.parse_args()
 
 args = plr.resolve_args(plr.Args(env=options.env))
 torch.manual_seed(0)
-if os.environ.get("THREADS"): torch.set_num_threads(int(os.environ["THREADS"]))
 np.random.seed(0)
 env = envs.make(args.env, args.num_envs, 0)
 rng = np.random.default_rng(0)
