@@ -6,7 +6,7 @@ random_levels, reset, step, test_levels, mutate, level_metrics, render, teacher,
 
 from __future__ import annotations
 
-ENV_NAMES = ("maze", "maze25")
+ENV_NAMES = ("maze", "maze25", "carracing", "walker")
 
 
 def make(name: str, num_envs: int, seed: int):
@@ -14,4 +14,12 @@ def make(name: str, num_envs: int, seed: int):
         from envs.maze import MazeEnv
 
         return MazeEnv(name, num_envs, seed)
+    if name == "carracing":
+        from envs.carracing import CarRacingEnv
+
+        return CarRacingEnv(num_envs, seed)
+    if name == "walker":
+        from envs.walker import WalkerEnv
+
+        return WalkerEnv(num_envs, seed)
     raise ValueError(f"unknown env {name!r}: expected one of {', '.join(ENV_NAMES)}")

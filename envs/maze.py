@@ -237,6 +237,12 @@ class MazeEnv:
         self.Teacher = MazeTeacher
         self.solved_threshold = 0.0  # solved = return > 0 (SPEC 5)
         self.validation_levels = ("SixteenRooms", "Labyrinth", "Maze")  # the paper's validation mazes
+        self.level_metric_names = ("walls", "passable", "path_length")
+        self.level_generators = {"random": self.random_levels, "empty": self.empty_levels}
+        self.training = True  # the maze has no training-only reward shaping; kept for the common interface
+
+    def close(self) -> None:
+        """Nothing to release: the maze runs in this process (the common interface of every env)."""
 
     # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------------
     def teacher(self) -> MazeTeacherMDP:

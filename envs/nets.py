@@ -11,7 +11,7 @@ import math
 
 import torch
 from torch import nn
-from torch.distributions import Categorical
+from torch.distributions import Categorical, Distribution
 
 
 def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) -> nn.Module:
@@ -131,6 +131,8 @@ class RecurrentCategoricalActorCritic(nn.Module):
     (hidden -> 1) and `_hidden(obs, state, done) -> (hidden, state)`.
     """
 
+    is_recurrent = True  # PPO keeps each copy's rollout whole: minibatches are split over env copies
+
     def initial_state(self, n: int, device=None):
         return self.lstm.initial_state(n, device)
 
@@ -157,3 +159,35 @@ class RecurrentCategoricalActorCritic(nn.Module):
         entropy = -(probs * log_probs).sum(-1)
         logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
         return action, logprob, entropy, self.critic(hidden).squeeze(-1), state
+
+
+class FeedForwardActorCritic(nn.Module):
+    """The same calling convention for a feed-forward net (CarRacing, walker, their teachers).
+
+    A subclass defines `dist_and_value(obs) -> (distribution, value [B])`. For a continuous action the
+    distribution is an `Independent` over the action's dimensions, so `log_prob`, `entropy` and the BC
+    KL are sums over them (SPEC 4, BC). There is no state: `initial_state` is None and `state` and
+    `done` are ignored, so PPO may draw minibatches from single samples.
+    """
+
+    is_recurrent = False
+
+    def initial_state(self, n: int, device=None):
+        return None
+
+    def sample(self, dist: Distribution) -> torch.Tensor:
+        """A fresh action from the policy (a subclass may keep it inside the support's interior)."""
+        return dist.sample()
+
+    def dist(self, obs: dict, state=None, done=None) -> Distribution:
+        return self.dist_and_value(obs)[0]
+
+    def get_value(self, obs: dict, state=None, done=None) -> torch.Tensor:
+        return self.dist_and_value(obs)[1]
+
+    def get_action_and_value(self, obs: dict, state=None, done=None, action=None):
+        """-> action, log-probability, entropy, value, state (always None)."""
+        dist, value = self.dist_and_value(obs)
+        if action is None:
+            action = self.sample(dist)
+        return action, dist.log_prob(action), dist.entropy(), value, None
