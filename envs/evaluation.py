@@ -31,6 +31,7 @@ def evaluate(agent, env_name: str, level, episodes: int, seed: int, device) -> n
 
 def _play_first_episodes(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
     env = envs.make(env_name, episodes, seed)
+    env.training = False  # no training-only reward shaping (SPEC 2)
     obs = env.reset(level.generate(episodes, np.random.default_rng(seed)), level.max_steps)
     state = agent.initial_state(episodes, device)
     done = torch.ones(episodes, device=device)
@@ -43,6 +44,7 @@ def _play_first_episodes(agent, env_name: str, level, episodes: int, seed: int, 
         ended = terminated | truncated
         finished |= ended
         done = torch.as_tensor(ended, dtype=torch.float32, device=device)
+    env.close()
     return returns
 
 
@@ -50,6 +52,7 @@ def evaluate_all(agent, env_name: str, names, episodes: int, seed: int, device) 
     """{level name: {"solved_rate", "mean_return"}} over the named held-out levels of the env."""
     env = envs.make(env_name, 1, seed)
     held_out = env.test_levels()
+    env.close()
     results = {}
     for i, name in enumerate(names):
         returns = evaluate(agent, env_name, held_out[name], episodes, seed + 1000 * i, device)
