@@ -9,6 +9,7 @@ every replayed level once).
 
     python accel.py --env maze                      # ACCEL, DR levels as the generator
     python accel.py --env maze --generator empty    # ACCEL from empty rooms
+    python accel.py --env walker                    # ACCEL on BipedalWalker terrain, the easy generator
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from envs.render import save_curves, save_image_grid
 @dataclass
 class Args:
     env: str = "maze"
-    """environment: maze (uniform 0-60 walls) or maze25 (25 walls); sets every paper default below"""
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
     exp_name: str = "accel"
     """name of this experiment, part of the run directory's name"""
     seed: int = 1
@@ -48,6 +49,8 @@ class Args:
     """the wandb project, with --track"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
+    f1_tracks: Optional[str] = None
+    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
 
     # PPO (SPEC 4; None = the paper's value for --env)
     total_timesteps: Optional[int] = None
@@ -70,8 +73,10 @@ class Args:
     """entropy bonus coefficient (paper: 0)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    clip_vloss: Optional[bool] = None
-    """clip the value loss as PPO's surrogate (paper: yes for the maze)"""
+    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    normalize_returns: Optional[bool] = None
+    """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -90,10 +95,10 @@ class Args:
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
     # Editing (SPEC 4, ACCEL)
-    generator: Literal["random", "empty"] = "random"
-    """new levels: random (the DR generator) or empty rooms (ACCEL-empty)"""
+    generator: Optional[str] = None
+    """new levels: random (the DR generator, maze and carracing default), empty rooms (maze, ACCEL-empty) or easy (walker default)"""
     num_edits: Optional[int] = None
-    """random edits per child level (paper: 5)"""
+    """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
     """parents: the easy (lowest-score) half of the replayed batch, two children each; or every replayed level once"""
     min_fill_ratio: float = 0.5
@@ -104,8 +109,8 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
-    eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    eval_episodes: Optional[int] = None
+    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 50
     """updates between checkpoints (written atomically)"""
     levels_interval: int = 500
@@ -113,12 +118,24 @@ class Args:
 
 
 # The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 and 4).
+# ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
+# replay rate and staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, clip_vloss=True,
-                 replay_prob=0.8, level_buffer_size=4000, temperature=0.3, staleness_coef=0.5, num_edits=5),
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, value_loss="clipped",
+                 normalize_returns=False, replay_prob=0.8, level_buffer_size=4000, temperature=0.3,
+                 staleness_coef=0.5, num_edits=5, generator="random", eval_episodes=100),
+    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, ent_coef=0.0, value_loss="huber",
+                      normalize_returns=True, replay_prob=0.8, level_buffer_size=10000, temperature=0.3,
+                      staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
+    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="mse",
+                   normalize_returns=True, replay_prob=0.9, level_buffer_size=1000, temperature=0.1,
+                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random",), "walker": ("random", "easy")}
 
 
 def fail(message: str) -> None:
@@ -138,6 +155,7 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    check_track_file(args)
     if args.track:
         try:
             import wandb  # noqa: F401
@@ -148,18 +166,39 @@ def resolve_args(args: Args) -> Args:
             setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    if args.num_envs % args.num_minibatches != 0:
+    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
+    if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
     if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
         fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
     if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
         fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
+    if args.generator not in GENERATORS[args.env]:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
     if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
         fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
     if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
+
+
+def check_track_file(args: Args) -> None:
+    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
+    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
+    if args.f1_tracks is not None and args.env != "carracing":
+        fail("--f1-tracks applies to --env carracing only")
+    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
+    if args.env == "carracing" and path:
+        from envs.carracing import load_f1_tracks
+
+        try:
+            load_f1_tracks(path)
+        except ValueError as error:
+            fail(str(error))
+        os.environ["CLEANUED_F1_TRACKS"] = path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -273,25 +312,64 @@ class LevelBuffer:
 
 
 # ---------------------------------------------------------------------------------------------------
-# PPO with a recurrent student: rollout, GAE and the clipped update on whole sequences.
+# PPO: rollout, return normalization, GAE and the clipped update (whole sequences for an LSTM).
 # ---------------------------------------------------------------------------------------------------
+def torch_dtype(space) -> torch.dtype:
+    return torch.from_numpy(np.zeros(0, space.dtype)).dtype
+
+
 class Rollout:
     """Storage for one rollout of num_steps x num_envs, allocated once and reused."""
 
     def __init__(self, env, num_steps: int, num_envs: int, device):
         space = env.single_observation_space
-        self.obs = {k: torch.zeros((num_steps, num_envs) + s.shape, dtype=torch.from_numpy(np.zeros(0, s.dtype)).dtype, device=device) for k, s in space.spaces.items()}
-        self.actions = torch.zeros((num_steps, num_envs) + env.single_action_space.shape, dtype=torch.long, device=device)
+        self.obs = {k: torch.zeros((num_steps, num_envs) + s.shape, dtype=torch_dtype(s), device=device) for k, s in space.spaces.items()}
+        action_space = env.single_action_space
+        self.actions = torch.zeros((num_steps, num_envs) + action_space.shape, dtype=torch_dtype(action_space), device=device)
         self.logprobs = torch.zeros(num_steps, num_envs, device=device)
         self.rewards = torch.zeros(num_steps, num_envs, device=device)
         self.dones = torch.zeros(num_steps, num_envs, device=device)  # 1 where an episode starts at step t
         self.values = torch.zeros(num_steps, num_envs, device=device)
 
 
+class ReturnNormalizer:
+    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
+    running moments are updated with every step's discounted return of every copy."""
+
+    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
+        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
+        self.returns = np.zeros(num_envs)
+        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
+
+    def update(self, values: np.ndarray) -> None:
+        """Parallel-algorithm update of the running mean and variance with a batch of values."""
+        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
+        delta, total = batch_mean - self.mean, self.count + batch_count
+        self.mean += delta * batch_count / total
+        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+        self.count = total
+
+    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
+        self.returns = self.returns * self.gamma + reward
+        self.update(self.returns)
+        self.returns[ended] = 0.0
+        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean, "var": self.var, "count": self.count}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
+
+
 @torch.no_grad()
-def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device):
-    """Play one rollout on `levels` (one per copy). Returns advantages, returns and episode stats."""
+def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
+    """Play one rollout on `levels` (one per copy). Returns advantages, returns and episode stats
+    (episode returns are the env's own rewards; training uses the normalized ones if `normalizer`)."""
     obs = env.reset(levels)
+    if normalizer is not None:
+        normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
     done = torch.ones(args.num_envs, device=device)
     episode_returns, running_return = [], np.zeros(args.num_envs)
@@ -304,8 +382,8 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device):
         storage.logprobs[step] = logprob
         storage.values[step] = value
         obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        storage.rewards[step] = torch.from_numpy(reward)
         ended = terminated | truncated
+        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
         running_return += reward
         episode_returns.extend(running_return[ended].tolist())
         running_return[ended] = 0.0
@@ -324,28 +402,45 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device):
     return advantages, advantages + storage.values, episode_returns
 
 
+def minibatch_rows(recurrent: bool, args: Args, device):
+    """One epoch's minibatches as rows of the flattened time-major batch (row t * num_envs + n is step t
+    of copy n). An LSTM needs whole rollouts: each minibatch holds all steps of some env copies, again
+    time-major. A feed-forward net takes any steps: random minibatches of single steps."""
+    if recurrent:
+        order = torch.as_tensor(np.random.permutation(args.num_envs), device=device)
+        copies_per_batch = args.num_envs // args.num_minibatches
+        steps = torch.arange(args.num_steps, device=device).unsqueeze(1) * args.num_envs
+        for start in range(0, args.num_envs, copies_per_batch):
+            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
+    else:
+        order = torch.as_tensor(np.random.permutation(args.num_envs * args.num_steps), device=device)
+        yield from order.chunk(args.num_minibatches)
+
+
+def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
+    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    if args.value_loss == "clipped":
+        clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
+        return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
+    if args.value_loss == "huber":
+        return nn.functional.smooth_l1_loss(value, ret)
+    return 0.5 * ((value - ret) ** 2).mean()
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Args, update: int, device) -> dict:
-    """PPO's clipped update on whole sequences (minibatches split over env copies)."""
-    envs_per_batch = args.num_envs // args.num_minibatches
-    state = agent.initial_state(envs_per_batch, device)  # every rollout starts on fresh levels
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
+    state = agent.initial_state(args.num_envs // args.num_minibatches, device)  # every rollout starts on fresh levels
     stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "clipfrac": 0.0}
     for _ in range(args.update_epochs):
-        order = np.random.permutation(args.num_envs)
-        for start in range(0, args.num_envs, envs_per_batch):
-            idx = torch.as_tensor(order[start : start + envs_per_batch], device=device)
-            flat = lambda x: x[:, idx].reshape((-1,) + x.shape[2:])  # noqa: E731 (time-major [T * n])
+        for rows in minibatch_rows(agent.is_recurrent, args, device):
+            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            ret, old_value = flat(returns), flat(storage.values)
-            if args.clip_vloss:
-                clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
-                value_loss = 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
-            else:
-                value_loss = 0.5 * ((value - ret) ** 2).mean()
+            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
             loss = policy_loss - args.ent_coef * entropy.mean() + args.vf_coef * value_loss
             optimizer.zero_grad()
             loss.backward()
@@ -365,10 +460,13 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Ar
 # ---------------------------------------------------------------------------------------------------
 # Run directory: metrics, checkpoints (atomic), level images, final evaluation.
 # ---------------------------------------------------------------------------------------------------
-METRICS = ["update", "env_steps", "sps", "replay", "mean_return", "solved_rate", "episodes",
-           "buffer_size", "buffer_mean_score", "mean_score", "walls", "passable", "path_length",
-           "children_entered", "child_score", "child_walls_change", "child_path_length_change",
-           "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
+def metric_names(env) -> list[str]:
+    """The columns of metrics.csv: one row per update, the env's level metrics (and their change from
+    parent to child) among them."""
+    return ["update", "env_steps", "sps", "replay", "mean_return", "solved_rate", "episodes",
+            "buffer_size", "buffer_mean_score", "mean_score", *env.level_metric_names,
+            "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
+            "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
 def save_checkpoint(path: str, state: dict) -> None:
@@ -394,6 +492,8 @@ if __name__ == "__main__":
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
     storage = Rollout(env, args.num_steps, args.num_envs, device)
+    normalizer = ReturnNormalizer(args.num_envs, args.gamma) if args.normalize_returns else None
+    metrics = metric_names(env)
     start_update, global_step, elapsed = 1, 0, 0.0
 
     if args.resume:
@@ -402,6 +502,8 @@ if __name__ == "__main__":
         agent.load_state_dict(checkpoint["agent"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         buffer.load_state_dict(checkpoint["buffer"], env.Levels)
+        if normalizer is not None:
+            normalizer.load_state_dict(checkpoint["normalizer"])
         level_rng.bit_generator.state = checkpoint["rng"]["level"]
         env.rng.bit_generator.state = checkpoint["rng"]["env"]
         np.random.set_state(checkpoint["numpy_global"])
@@ -410,7 +512,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=METRICS)
+            writer = csv.DictWriter(f, fieldnames=metrics)
             writer.writeheader()
             writer.writerows(kept)
         print(f"resuming {run_dir} at update {start_update}, step {global_step}/{args.total_timesteps}")
@@ -420,7 +522,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "args.json"), "w") as f:
             json.dump(dataclasses.asdict(args), f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=METRICS).writeheader()
+            csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
         import wandb
 
@@ -428,7 +530,7 @@ if __name__ == "__main__":
     print(f"ACCEL on {args.env}: {args.total_timesteps} env steps, {batch_size} per rollout, device {device}, run {run_dir}")
 
     metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=METRICS)
+    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
     window_start, window_steps = time.time(), 0
     update = start_update - 1
     while global_step < args.total_timesteps:
@@ -438,14 +540,12 @@ if __name__ == "__main__":
         if replay:
             replay_index = buffer.sample(args.num_envs, update, level_rng)
             levels = buffer.levels[replay_index]
-        elif args.generator == "empty":
-            levels = env.empty_levels(args.num_envs, level_rng)
         else:
-            levels = env.random_levels(args.num_envs, level_rng)
+            levels = env.level_generators[args.generator](args.num_envs, level_rng)
 
         # Robust PLR: train on replayed levels only; new levels are played and scored.
         agent.eval()
-        advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device)
+        advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device, normalizer)
         scores = positive_value_loss(advantages, storage.dones).cpu().numpy()
         stats, edit_stats = {}, {}
         if replay:
@@ -455,15 +555,14 @@ if __name__ == "__main__":
             # ACCEL's editing: mutate copies of replayed levels, play them without gradient, score them
             # and offer them to the buffer.
             parents = select_parents(scores, args.edit_levels)
-            children = env.mutate(levels[parents], level_rng, args.num_edits)
+            children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
             agent.eval()
-            child_advantages, _, _ = collect_rollout(agent, env, children, storage, args, device)
+            child_advantages, _, _ = collect_rollout(agent, env, children, storage, args, device, normalizer)
             child_scores = positive_value_loss(child_advantages, storage.dones).cpu().numpy()
             entered = buffer.insert(children, child_scores, update)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
             edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
-                          "child_walls_change": float(np.mean(child_metrics["walls"] - parent_metrics["walls"])),
-                          "child_path_length_change": float(np.mean(child_metrics["path_length"] - parent_metrics["path_length"]))}
+                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}}
             global_step += batch_size
             window_steps += batch_size
         else:
@@ -506,8 +605,10 @@ if __name__ == "__main__":
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),
                 "rng": rng_state({"level": level_rng, "env": env.rng}), "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed})
+                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed,
+                "normalizer": None if normalizer is None else normalizer.state_dict()})
     metrics_file.close()
+    env.close()
 
     # Final zero-shot evaluation on every held-out level (SPEC 5).
     agent.eval()
@@ -519,6 +620,6 @@ if __name__ == "__main__":
         print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
     save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
         ("training return", ["mean_return"]), ("solved rate", ["solved_rate", "val_solved_rate"]),
-        ("level complexity", ["walls", "path_length"]), ("PLR scores", ["buffer_mean_score", "mean_score"]),
+        ("level complexity", list(env.level_metric_names)), ("PLR scores", ["buffer_mean_score", "mean_score"]),
         ("policy entropy", ["entropy"])])
     print(f"done: {run_dir}")

@@ -19,7 +19,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass
-from typing import Optional
+from typing import Literal, Optional
 
 import numpy as np
 import torch
@@ -34,7 +34,7 @@ from envs.render import save_curves, save_image_grid
 @dataclass
 class Args:
     env: str = "maze"
-    """environment: maze (uniform 0-60 walls) or maze25 (25 walls); sets every paper default below"""
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
     exp_name: str = "paired"
     """name of this experiment, part of the run directory's name"""
     seed: int = 1
@@ -47,6 +47,8 @@ class Args:
     """the wandb project, with --track"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
+    f1_tracks: Optional[str] = None
+    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
 
     # PPO for all three agents (SPEC 4; None = the paper's value for --env)
     total_timesteps: Optional[int] = None
@@ -69,12 +71,16 @@ class Args:
     """entropy bonus of protagonist and antagonist (PAIRED: 0)"""
     teacher_ent_coef: Optional[float] = None
     """entropy bonus of the teacher (PAIRED: 0)"""
-    teacher_conv_channels: int = 128
-    """channels of the teacher's conv layer (paper: 128; fewer make a lighter, faster teacher)"""
+    teacher_conv_channels: Optional[int] = None
+    """maze: channels of the teacher's conv layer (paper: 128; fewer make a lighter, faster teacher)"""
+    normalize_teacher_returns: Optional[bool] = None
+    """divide the teacher's return (the regret) by its running std (paper: carracing and walker)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    clip_vloss: Optional[bool] = None
-    """clip the value loss as PPO's surrogate (paper: yes for the maze)"""
+    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    normalize_returns: Optional[bool] = None
+    """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -87,19 +93,25 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 50
     """updates between validation runs of the protagonist on the paper's validation levels"""
-    eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    eval_episodes: Optional[int] = None
+    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 10
     """updates between checkpoints (written atomically)"""
     levels_interval: int = 100
     """updates between PNGs of the levels the teacher made"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 and 4).
+# The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 to 4).
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
                  gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, teacher_ent_coef=0.0,
-                 clip_vloss=True),
+                 value_loss="clipped", normalize_returns=False, normalize_teacher_returns=False, eval_episodes=100),
+    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, teacher_ent_coef=0.0,
+                      value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=10),
+    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_ent_coef=0.0,
+                   value_loss="mse", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 
@@ -121,6 +133,7 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    check_track_file(args)
     if args.track:
         try:
             import wandb  # noqa: F401
@@ -131,11 +144,16 @@ def resolve_args(args: Args) -> Args:
             setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    if args.num_envs % args.num_minibatches != 0:
+    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
+    if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
     if min(args.student_ent_coef, args.teacher_ent_coef) < 0:
         fail("entropy coefficients must be >= 0")
-    if args.teacher_conv_channels <= 0:
+    if args.teacher_conv_channels is not None and args.env not in ("maze", "maze25"):
+        fail("--teacher-conv-channels applies to the maze's teacher only")
+    if args.teacher_conv_channels is not None and args.teacher_conv_channels <= 0:
         fail("--teacher-conv-channels must be positive")
     if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
@@ -143,19 +161,69 @@ def resolve_args(args: Args) -> Args:
     return args
 
 
+def check_track_file(args: Args) -> None:
+    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
+    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
+    if args.f1_tracks is not None and args.env != "carracing":
+        fail("--f1-tracks applies to --env carracing only")
+    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
+    if args.env == "carracing" and path:
+        from envs.carracing import load_f1_tracks
+
+        try:
+            load_f1_tracks(path)
+        except ValueError as error:
+            fail(str(error))
+        os.environ["CLEANUED_F1_TRACKS"] = path
+
+
 # ---------------------------------------------------------------------------------------------------
-# PPO with recurrent agents: rollout storage, GAE and the clipped update on whole sequences.
+# PPO: rollout storage, return normalization, GAE and the clipped update (whole sequences for an LSTM).
 # ---------------------------------------------------------------------------------------------------
 class Rollout:
-    """Storage for one rollout of num_steps x n, shaped after a first observation; reused each update."""
+    """Storage for one rollout of num_steps x n, shaped after a first observation and the action space;
+    reused each update."""
 
-    def __init__(self, first_obs: dict, num_steps: int, n: int, device):
+    def __init__(self, first_obs: dict, action_space, num_steps: int, n: int, device):
         self.obs = {k: torch.zeros((num_steps,) + v.shape, dtype=torch.from_numpy(v).dtype, device=device) for k, v in first_obs.items()}
-        self.actions = torch.zeros(num_steps, n, dtype=torch.long, device=device)
+        action_dtype = torch.from_numpy(np.zeros(0, action_space.dtype)).dtype
+        self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
         self.logprobs = torch.zeros(num_steps, n, device=device)
         self.rewards = torch.zeros(num_steps, n, device=device)
         self.dones = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
         self.values = torch.zeros(num_steps, n, device=device)
+
+
+class ReturnNormalizer:
+    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
+    running moments are updated with every step's discounted return of every copy. The teacher's
+    returns (its final-step regret) are normalized the same way in CarRacing and the walker (SPEC 4)."""
+
+    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
+        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
+        self.returns = np.zeros(num_envs)
+        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
+
+    def update(self, values: np.ndarray) -> None:
+        """Parallel-algorithm update of the running mean and variance with a batch of values."""
+        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
+        delta, total = batch_mean - self.mean, self.count + batch_count
+        self.mean += delta * batch_count / total
+        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+        self.count = total
+
+    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
+        self.returns = self.returns * self.gamma + reward
+        self.update(self.returns)
+        self.returns[ended] = 0.0
+        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean, "var": self.var, "count": self.count}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
 
 
 def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
@@ -173,10 +241,13 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
-    returns of its completed episodes."""
+    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
+    `normalizer`)."""
     obs = env.reset(levels)
+    if normalizer is not None:
+        normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
     done = torch.ones(args.num_envs, device=device)
     episode_returns = [[] for _ in range(args.num_envs)]
@@ -190,8 +261,8 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device):
         storage.logprobs[step] = logprob
         storage.values[step] = value
         obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        storage.rewards[step] = torch.from_numpy(reward)
         ended = terminated | truncated
+        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
         running_return += reward
         for i in np.nonzero(ended)[0]:
             episode_returns[i].append(running_return[i])
@@ -204,29 +275,46 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device):
     return advantages, returns, episode_returns
 
 
+def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
+    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
+    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
+    time-major. A feed-forward net takes any steps: random minibatches of single steps."""
+    if recurrent:
+        order = torch.as_tensor(np.random.permutation(n), device=device)
+        copies_per_batch = n // num_minibatches
+        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
+        for start in range(0, n, copies_per_batch):
+            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
+    else:
+        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
+        yield from order.chunk(num_minibatches)
+
+
+def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
+    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    if args.value_loss == "clipped":
+        clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
+        return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
+    if args.value_loss == "huber":
+        return nn.functional.smooth_l1_loss(value, ret)
+    return 0.5 * ((value - ret) ** 2).mean()
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, args: Args, update: int, device) -> dict:
-    """PPO's clipped update on whole sequences (minibatches split over env copies)."""
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
     num_steps, n = storage.rewards.shape
-    per_batch = n // args.num_minibatches
-    state = agent.initial_state(per_batch, device)  # every rollout starts from a fresh state
+    state = agent.initial_state(n // args.num_minibatches, device)  # every rollout starts from a fresh state
     stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0}
     for _ in range(args.update_epochs):
-        order = np.random.permutation(n)
-        for start in range(0, n, per_batch):
-            idx = torch.as_tensor(order[start : start + per_batch], device=device)
-            flat = lambda x: x[:, idx].reshape((-1,) + x.shape[2:])  # noqa: E731 (time-major [T * n])
+        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
+            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            ret, old_value = flat(returns), flat(storage.values)
-            if args.clip_vloss:
-                clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
-                value_loss = 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
-            else:
-                value_loss = 0.5 * ((value - ret) ** 2).mean()
+            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
             loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
             optimizer.zero_grad()
             loss.backward()
@@ -275,11 +363,13 @@ def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------
 # Run directory: metrics, checkpoints (atomic), level images, final evaluation.
 # ---------------------------------------------------------------------------------------------------
-METRICS = ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
-           "protagonist_solved", "antagonist_solved", "protagonist_entropy", "antagonist_entropy", "teacher_entropy",
-           "walls", "passable", "path_length", "protagonist_value_loss", "antagonist_value_loss",
-           "teacher_value_loss", "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
-           "time_teacher_update", "val_solved_rate", "val_return"]
+def metric_names(env) -> list[str]:
+    """The columns of metrics.csv: one row per update, the env's level metrics among them."""
+    return ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
+            "protagonist_solved", "antagonist_solved", "protagonist_entropy", "antagonist_entropy", "teacher_entropy",
+            *env.level_metric_names, "protagonist_value_loss", "antagonist_value_loss",
+            "teacher_value_loss", "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
+            "time_teacher_update", "val_solved_rate", "val_return"]
 
 
 def save_checkpoint(path: str, state: dict) -> None:
@@ -307,11 +397,16 @@ if __name__ == "__main__":
     torch.manual_seed(args.seed)
     protagonist = env.Student().to(device)
     antagonist = env.Student().to(device)
-    teacher = env.Teacher(mdp.num_steps, conv_channels=args.teacher_conv_channels).to(device)
+    teacher_options = {} if args.teacher_conv_channels is None else {"conv_channels": args.teacher_conv_channels}
+    teacher = env.Teacher(mdp.num_steps, **teacher_options).to(device)
     agents = {"protagonist": protagonist, "antagonist": antagonist, "teacher": teacher}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in agents.items()}
-    student_storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), args.num_steps, args.num_envs, device)
-    teacher_storage = Rollout(mdp.reset(args.num_envs), mdp.num_steps, args.num_envs, device)
+    student_storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
+    teacher_storage = Rollout(mdp.reset(args.num_envs), mdp.action_space, mdp.num_steps, args.num_envs, device)
+    normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in ("protagonist", "antagonist")} if args.normalize_returns else {}
+    if args.normalize_teacher_returns:
+        normalizers["teacher"] = ReturnNormalizer(args.num_envs, args.gamma)
+    metrics = metric_names(env)
     start_update, global_step, elapsed = 1, 0, 0.0
 
     if args.resume:
@@ -320,6 +415,8 @@ if __name__ == "__main__":
         for name in agents:
             agents[name].load_state_dict(checkpoint[name])
             optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
+        for name, normalizer in normalizers.items():
+            normalizer.load_state_dict(checkpoint[name + "_normalizer"])
         env.rng.bit_generator.state = checkpoint["env_rng"]
         np.random.set_state(checkpoint["numpy_global"])
         torch.set_rng_state(checkpoint["torch"])
@@ -327,7 +424,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=METRICS)
+            writer = csv.DictWriter(f, fieldnames=metrics)
             writer.writeheader()
             writer.writerows(kept)
         print(f"resuming {run_dir} at update {start_update}/{num_updates}")
@@ -337,7 +434,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "args.json"), "w") as f:
             json.dump(dataclasses.asdict(args), f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=METRICS).writeheader()
+            csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
         import wandb
 
@@ -345,7 +442,7 @@ if __name__ == "__main__":
     print(f"PAIRED on {args.env}: {num_updates} updates of {batch_size} protagonist steps, device {device}, run {run_dir}")
 
     metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=METRICS)
+    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
     for update in range(start_update, num_updates + 1):
         update_start = time.time()
         for agent in agents.values():
@@ -358,7 +455,7 @@ if __name__ == "__main__":
         stats, returns_of, times = {}, {}, {"rollouts": 0.0, "updates": 0.0}
         for name in ("protagonist", "antagonist"):
             start = time.time()
-            advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device)
+            advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device, normalizers.get(name))
             times["rollouts"] += time.time() - start
             start = time.time()
             agents[name].train()
@@ -369,7 +466,10 @@ if __name__ == "__main__":
         start = time.time()
         level_regret = regret(returns_of["protagonist"], returns_of["antagonist"])
         teacher_storage.rewards.zero_()
-        teacher_storage.rewards[-1] = torch.as_tensor(level_regret, dtype=torch.float32, device=device)
+        teacher_reward = level_regret
+        if "teacher" in normalizers:  # SPEC 4: CarRacing and walker divide the teacher's return by its running std
+            teacher_reward = normalizers["teacher"](level_regret, np.ones(args.num_envs, dtype=bool))
+        teacher_storage.rewards[-1] = torch.as_tensor(teacher_reward, dtype=torch.float32, device=device)
         with torch.no_grad():
             advantages, returns = gae(teacher_storage, torch.zeros(args.num_envs, device=device), torch.ones(args.num_envs, device=device), args.gamma, args.gae_lambda)
         teacher.train()
@@ -405,7 +505,7 @@ if __name__ == "__main__":
             eta = (num_updates - update) * elapsed / update
             print(f"update {update}/{num_updates} | steps {global_step} | {row['sps']} steps/s | return P {row['protagonist_return']:.3f} "
                   f"A {row['antagonist_return']:.3f} | regret {row['regret']:.3f} | entropy T {row['teacher_entropy']:.2f} "
-                  f"| walls {row['walls']:.1f} path {row['path_length']:.1f} | time: teacher rollout {time_teacher_rollout / total:.0%}, "
+                  f"| {' '.join(f'{k} {row[k]:.1f}' for k in env.level_metric_names[:3])} | time: teacher rollout {time_teacher_rollout / total:.0%}, "
                   f"student rollouts {times['rollouts'] / total:.0%}, student updates {times['updates'] / total:.0%}, "
                   f"teacher update {time_teacher_update / total:.0%} | ETA {eta / 60:.1f} min")
         if update % args.levels_interval == 0 or update == num_updates:
@@ -415,8 +515,10 @@ if __name__ == "__main__":
                 **{name: a.state_dict() for name, a in agents.items()},
                 **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
                 "env_rng": env.rng.bit_generator.state, "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed})
+                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed,
+                **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
     metrics_file.close()
+    env.close()
 
     # Final zero-shot evaluation of the protagonist on every held-out level (SPEC 5).
     protagonist.eval()
@@ -430,5 +532,5 @@ if __name__ == "__main__":
         ("returns", ["protagonist_return", "antagonist_return", "regret"]),
         ("validation solved rate", ["val_solved_rate"]),
         ("entropy", ["protagonist_entropy", "antagonist_entropy", "teacher_entropy"]),
-        ("walls", ["walls"]), ("shortest path", ["path_length"])])
+        ("level complexity", list(env.level_metric_names))])
     print(f"done: {run_dir}")

@@ -39,7 +39,7 @@ from envs.render import save_curves, save_image_grid
 @dataclass
 class Args:
     env: str = "maze"
-    """environment: maze (uniform 0-60 walls) or maze25 (25 walls); sets every paper default below"""
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
     exp_name: str = "paired_evo"
     """name of this experiment, part of the run directory's name"""
     seed: int = 1
@@ -52,6 +52,8 @@ class Args:
     """the wandb project, with --track"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
+    f1_tracks: Optional[str] = None
+    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
 
     # PPO for both students (SPEC 4; None = the paper's value for --env)
     total_timesteps: Optional[int] = None
@@ -82,8 +84,10 @@ class Args:
     """FlexPAIRED+Evo: the flexible regret, no fixed roles (replay probability 0.9)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    clip_vloss: Optional[bool] = None
-    """clip the value loss as PPO's surrogate (paper: yes for the maze)"""
+    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    normalize_returns: Optional[bool] = None
+    """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -93,7 +97,7 @@ class Args:
 
     # Robust PLR's level replay (SPEC 4)
     replay_prob: Optional[float] = None
-    """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible)"""
+    """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible on the maze)"""
     level_buffer_size: Optional[int] = None
     """levels kept in the buffer (paper: 4000)"""
     temperature: Optional[float] = None
@@ -102,10 +106,10 @@ class Args:
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
     # Editing (SPEC 4, ACCEL)
-    generator: Literal["random", "empty"] = "random"
-    """new levels: random (the DR generator) or empty rooms (ACCEL-empty)"""
+    generator: Optional[str] = None
+    """new levels: random (the DR generator, maze and carracing default), empty rooms (maze) or easy (walker default)"""
     num_edits: Optional[int] = None
-    """random edits per child level (paper: 5)"""
+    """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
     """parents: the easy (lowest-score) half of the replayed batch, two children each; or every replayed level once"""
     min_fill_ratio: float = 0.5
@@ -116,8 +120,8 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
-    eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    eval_episodes: Optional[int] = None
+    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 50
     """updates between checkpoints (written atomically)"""
     levels_interval: int = 500
@@ -125,12 +129,26 @@ class Args:
 
 
 # The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate; SPEC 4).
+# Evo was not run on CarRacing in the paper: its CarRacing defaults are PLR's buffer with the maze's
+# staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, clip_vloss=True,
-                 kl_coef=0.0, kl_interval=10, level_buffer_size=4000, temperature=0.3, staleness_coef=0.5, num_edits=5),
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, value_loss="clipped",
+                 normalize_returns=False, kl_coef=0.0, kl_interval=10, level_buffer_size=4000, temperature=0.3,
+                 staleness_coef=0.5, num_edits=5, generator="random", eval_episodes=100),
+    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
+                      normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=10000, temperature=0.3,
+                      staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
+    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="mse",
+                   normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=1000, temperature=0.1,
+                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # PAIRED+Evo
+FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
+GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random",), "walker": ("random", "easy")}
 
 
 def fail(message: str) -> None:
@@ -150,6 +168,7 @@ def resolve_args(args: Args) -> Args:
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    check_track_file(args)
     if args.track:
         try:
             import wandb  # noqa: F401
@@ -160,10 +179,15 @@ def resolve_args(args: Args) -> Args:
             setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    if args.num_envs % args.num_minibatches != 0:
+    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
+    if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
     if args.replay_prob is None:
-        args.replay_prob = 0.9 if args.flexible else 0.5
+        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB)[args.env]
+    if args.generator not in GENERATORS[args.env]:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
     if args.student_ent_coef < 0:
         fail("--student-ent-coef must be >= 0")
     if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
@@ -178,6 +202,22 @@ def resolve_args(args: Args) -> Args:
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
+
+
+def check_track_file(args: Args) -> None:
+    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
+    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
+    if args.f1_tracks is not None and args.env != "carracing":
+        fail("--f1-tracks applies to --env carracing only")
+    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
+    if args.env == "carracing" and path:
+        from envs.carracing import load_f1_tracks
+
+        try:
+            load_f1_tracks(path)
+        except ValueError as error:
+            fail(str(error))
+        os.environ["CLEANUED_F1_TRACKS"] = path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -291,18 +331,53 @@ class LevelBuffer:
 
 
 # ---------------------------------------------------------------------------------------------------
-# PPO with recurrent students: rollout storage, GAE and the clipped update, with the BC term.
+# PPO: rollout storage, return normalization, GAE and the clipped update (whole sequences for an LSTM),
+# with the BC term.
 # ---------------------------------------------------------------------------------------------------
 class Rollout:
-    """Storage for one rollout of num_steps x n, shaped after a first observation; reused each update."""
+    """Storage for one rollout of num_steps x n, shaped after a first observation and the action space;
+    reused each update."""
 
-    def __init__(self, first_obs: dict, num_steps: int, n: int, device):
+    def __init__(self, first_obs: dict, action_space, num_steps: int, n: int, device):
         self.obs = {k: torch.zeros((num_steps,) + v.shape, dtype=torch.from_numpy(v).dtype, device=device) for k, v in first_obs.items()}
-        self.actions = torch.zeros(num_steps, n, dtype=torch.long, device=device)
+        action_dtype = torch.from_numpy(np.zeros(0, action_space.dtype)).dtype
+        self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
         self.logprobs = torch.zeros(num_steps, n, device=device)
         self.rewards = torch.zeros(num_steps, n, device=device)
         self.dones = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
         self.values = torch.zeros(num_steps, n, device=device)
+
+
+class ReturnNormalizer:
+    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
+    running moments are updated with every step's discounted return of every copy. The teacher's
+    returns (its final-step regret) are normalized the same way in CarRacing and the walker (SPEC 4)."""
+
+    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
+        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
+        self.returns = np.zeros(num_envs)
+        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
+
+    def update(self, values: np.ndarray) -> None:
+        """Parallel-algorithm update of the running mean and variance with a batch of values."""
+        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
+        delta, total = batch_mean - self.mean, self.count + batch_count
+        self.mean += delta * batch_count / total
+        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+        self.count = total
+
+    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
+        self.returns = self.returns * self.gamma + reward
+        self.update(self.returns)
+        self.returns[ended] = 0.0
+        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean, "var": self.var, "count": self.count}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
 
 
 def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
@@ -320,10 +395,13 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
-    returns of its completed episodes."""
+    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
+    `normalizer`)."""
     obs = env.reset(levels)
+    if normalizer is not None:
+        normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
     done = torch.ones(args.num_envs, device=device)
     episode_returns = [[] for _ in range(args.num_envs)]
@@ -337,8 +415,8 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device):
         storage.logprobs[step] = logprob
         storage.values[step] = value
         obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        storage.rewards[step] = torch.from_numpy(reward)
         ended = terminated | truncated
+        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
         running_return += reward
         for i in np.nonzero(ended)[0]:
             episode_returns[i].append(running_return[i])
@@ -359,19 +437,41 @@ def cloning_kl(target, dist, obs: dict, state, done) -> torch.Tensor:
     return torch.distributions.kl_divergence(target_dist, dist).mean()
 
 
+def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
+    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
+    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
+    time-major. A feed-forward net takes any steps: random minibatches of single steps."""
+    if recurrent:
+        order = torch.as_tensor(np.random.permutation(n), device=device)
+        copies_per_batch = n // num_minibatches
+        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
+        for start in range(0, n, copies_per_batch):
+            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
+    else:
+        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
+        yield from order.chunk(num_minibatches)
+
+
+def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
+    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    if args.value_loss == "clipped":
+        clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
+        return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
+    if args.value_loss == "huber":
+        return nn.functional.smooth_l1_loss(value, ret)
+    return 0.5 * ((value - ret) ** 2).mean()
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, args: Args, update: int, device,
                clone_target=None, kl_coef: float = 0.0) -> dict:
-    """PPO's clipped update on whole sequences (minibatches split over env copies); with a clone_target,
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
     every minibatch loss adds kl_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
     num_steps, n = storage.rewards.shape
-    per_batch = n // args.num_minibatches
-    state = agent.initial_state(per_batch, device)  # every rollout starts from a fresh state
+    state = agent.initial_state(n // args.num_minibatches, device)  # every rollout starts from a fresh state
     stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "kl": 0.0}
     for _ in range(args.update_epochs):
-        order = np.random.permutation(n)
-        for start in range(0, n, per_batch):
-            idx = torch.as_tensor(order[start : start + per_batch], device=device)
-            flat = lambda x: x[:, idx].reshape((-1,) + x.shape[2:])  # noqa: E731 (time-major [T * n])
+        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
+            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             dist, value = agent.dist_and_value(obs, state, flat(storage.dones))
             logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
@@ -379,12 +479,7 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
             adv = flat(advantages)
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            ret, old_value = flat(returns), flat(storage.values)
-            if args.clip_vloss:
-                clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
-                value_loss = 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
-            else:
-                value_loss = 0.5 * ((value - ret) ** 2).mean()
+            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
             loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
             if clone_target is not None:
                 kl = cloning_kl(clone_target, dist, obs, state, flat(storage.dones))
@@ -407,11 +502,13 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
 # ---------------------------------------------------------------------------------------------------
 # Run directory: metrics, checkpoints (atomic), level images, final evaluation.
 # ---------------------------------------------------------------------------------------------------
-METRICS = ["update", "env_steps", "student_steps", "sps", "replay", "protagonist_return", "antagonist_return",
-           "protagonist_solved", "antagonist_solved", "regret", "buffer_size", "buffer_mean_score", "walls",
-           "passable", "path_length", "children_entered", "child_score", "child_walls_change",
-           "child_path_length_change", "protagonist_entropy", "antagonist_entropy", "kl_protagonist",
-           "kl_antagonist", "val_solved_rate", "val_return"]
+def metric_names(env) -> list[str]:
+    """The columns of metrics.csv: one row per update, the env's level metrics (and their change from
+    parent to child) among them."""
+    return ["update", "env_steps", "student_steps", "sps", "replay", "protagonist_return", "antagonist_return",
+            "protagonist_solved", "antagonist_solved", "regret", "buffer_size", "buffer_mean_score", *env.level_metric_names,
+            "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
+            "protagonist_entropy", "antagonist_entropy", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
 
 def save_checkpoint(path: str, state: dict) -> None:
@@ -443,7 +540,9 @@ if __name__ == "__main__":
     students = {"protagonist": protagonist, "antagonist": antagonist}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in students.items()}
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
-    storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), args.num_steps, args.num_envs, device)
+    storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
+    normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in students} if args.normalize_returns else {}
+    metrics = metric_names(env)
     start_update, global_step, student_steps, gradient_updates, elapsed = 1, 0, 0, 0, 0.0
 
     if args.resume:
@@ -452,6 +551,8 @@ if __name__ == "__main__":
         for name in students:
             students[name].load_state_dict(checkpoint[name])
             optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
+        for name, normalizer in normalizers.items():
+            normalizer.load_state_dict(checkpoint[name + "_normalizer"])
         buffer.load_state_dict(checkpoint["buffer"], env.Levels)
         level_rng.bit_generator.state = checkpoint["level_rng"]
         env.rng.bit_generator.state = checkpoint["env_rng"]
@@ -462,7 +563,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=METRICS)
+            writer = csv.DictWriter(f, fieldnames=metrics)
             writer.writeheader()
             writer.writerows(kept)
         print(f"resuming {run_dir} at update {start_update}, step {global_step}/{args.total_timesteps}")
@@ -472,7 +573,7 @@ if __name__ == "__main__":
         with open(os.path.join(run_dir, "args.json"), "w") as f:
             json.dump(dataclasses.asdict(args), f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=METRICS).writeheader()
+            csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
         import wandb
 
@@ -480,7 +581,7 @@ if __name__ == "__main__":
     print(f"{mode} on {args.env}: {args.total_timesteps} protagonist steps, {batch_size} per rollout, device {device}, run {run_dir}")
 
     metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=METRICS)
+    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
     update = start_update - 1
     while global_step < args.total_timesteps:
         update += 1
@@ -498,7 +599,7 @@ if __name__ == "__main__":
                              "antagonist": protagonist if cloning_update and args.bidirectional else None}
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                advantages, returns, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device)
+                advantages, returns, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
                 students[name].train()
                 stats[name] = ppo_update(students[name], optimizers[name], storage, advantages, returns, args.student_ent_coef, args,
                                          update, device, clone_target=clone_targets[name], kl_coef=args.kl_coef)
@@ -509,24 +610,23 @@ if __name__ == "__main__":
             # Lines 18-23: edit the replayed levels, evaluate the children with both students without
             # gradient, score them by regret and offer them to the buffer.
             parents = select_parents(scores, args.edit_levels)
-            children = env.mutate(levels[parents], level_rng, args.num_edits)
+            children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
             child_returns = {}
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, child_returns[name] = student_rollout(students[name], env, children, storage, args, device)
+                _, _, child_returns[name] = student_rollout(students[name], env, children, storage, args, device, normalizers.get(name))
             child_scores = score_levels(child_returns["protagonist"], child_returns["antagonist"])
             entered = buffer.insert(children, child_scores, update)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
             edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
-                          "child_walls_change": float(np.mean(child_metrics["walls"] - parent_metrics["walls"])),
-                          "child_path_length_change": float(np.mean(child_metrics["path_length"] - parent_metrics["path_length"]))}
+                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}}
             steps_this_update = 2 * batch_size
         else:
             # Lines 5-10: random levels, played by both students without gradient, scored by regret.
-            levels = env.empty_levels(args.num_envs, level_rng) if args.generator == "empty" else env.random_levels(args.num_envs, level_rng)
+            levels = env.level_generators[args.generator](args.num_envs, level_rng)
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device)
+                _, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
             scores = score_levels(returns_of["protagonist"], returns_of["antagonist"])
             buffer.insert(levels, scores, update)
             steps_this_update = batch_size
@@ -571,8 +671,10 @@ if __name__ == "__main__":
                 **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
                 "buffer": buffer.state_dict(), "level_rng": level_rng.bit_generator.state, "env_rng": env.rng.bit_generator.state,
                 "numpy_global": np.random.get_state(), "torch": torch.get_rng_state(), "update": update,
-                "global_step": global_step, "student_steps": student_steps, "gradient_updates": gradient_updates, "elapsed": elapsed})
+                "global_step": global_step, "student_steps": student_steps, "gradient_updates": gradient_updates, "elapsed": elapsed,
+                **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
     metrics_file.close()
+    env.close()
 
     # Final zero-shot evaluation of the protagonist on every held-out level (SPEC 5).
     protagonist.eval()
@@ -585,5 +687,5 @@ if __name__ == "__main__":
     save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
         ("returns", ["protagonist_return", "antagonist_return", "regret"]),
         ("validation solved rate", ["val_solved_rate"]), ("entropy", ["protagonist_entropy", "antagonist_entropy"]),
-        ("level complexity", ["walls", "path_length"]), ("cloning KL", ["kl_protagonist", "kl_antagonist"])])
+        ("level complexity", list(env.level_metric_names)), ("cloning KL", ["kl_protagonist", "kl_antagonist"])])
     print(f"done: {run_dir}")

@@ -91,6 +91,7 @@ class MazeTeacherMDP:
         self.interior = size - 2
         self.num_actions = self.interior**2
         self.num_steps = block_budget + 2
+        self.action_space = gym.spaces.Discrete(self.num_actions)
 
     def reset(self, n: int) -> dict:
         self.n = n

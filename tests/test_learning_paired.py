@@ -36,8 +36,8 @@ def test_paired_students_improve_on_the_teachers_levels(one_torch_thread):
     agents = {"protagonist": env.Student(), "antagonist": env.Student(), "teacher": env.Teacher(mdp.num_steps, conv_channels=4)}
     learning_rates = {"protagonist": args.learning_rate, "antagonist": args.learning_rate, "teacher": 1e-4}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=learning_rates[name], eps=args.adam_eps) for name, a in agents.items()}
-    student_storage = paired.Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), args.num_steps, args.num_envs, "cpu")
-    teacher_storage = paired.Rollout(mdp.reset(args.num_envs), mdp.num_steps, args.num_envs, "cpu")
+    student_storage = paired.Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, "cpu")
+    teacher_storage = paired.Rollout(mdp.reset(args.num_envs), mdp.action_space, mdp.num_steps, args.num_envs, "cpu")
 
     def mean_return(levels):
         """The protagonist's mean first-episode return, 12 episodes per level, with seeded action sampling."""

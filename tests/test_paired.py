@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -63,7 +64,7 @@ def test_regret_clips_a_negative_difference_to_zero():
 # GAE on tiny hand-worked rollouts
 # ---------------------------------------------------------------------------------------------------
 def storage_of(rewards, values, dones):
-    storage = paired.Rollout({"x": np.zeros((len(rewards[0]), 1), np.float32)}, len(rewards), len(rewards[0]), "cpu")
+    storage = paired.Rollout({"x": np.zeros((len(rewards[0]), 1), np.float32)}, gym.spaces.Discrete(2), len(rewards), len(rewards[0]), "cpu")
     storage.rewards[:] = torch.tensor(rewards)
     storage.values[:] = torch.tensor(values)
     storage.dones[:] = torch.tensor(dones)
@@ -216,7 +217,7 @@ def bc_setup(lr=1e-2):
     env = MazeEnv("maze", args.num_envs, 0)
     levels = env.random_levels(args.num_envs, np.random.default_rng(0))
     agent = student(0)
-    storage = paired_bc.Rollout(env.reset(levels), args.num_steps, args.num_envs, "cpu")
+    storage = paired_bc.Rollout(env.reset(levels), env.single_action_space, args.num_steps, args.num_envs, "cpu")
     torch.manual_seed(0)
     advantages, returns, _ = paired_bc.student_rollout(agent, env, levels, storage, args, "cpu")
     return args, agent, storage, advantages, returns
@@ -371,7 +372,7 @@ def test_paper_defaults_per_script_and_env(module, env, expected):
     assert {k: getattr(args, k) for k in expected} == expected
     # The shared PPO settings (SPEC 4) are the same for every script and env.
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda, args.update_epochs,
-            args.num_minibatches, args.clip_vloss) == (32, 256, 1e-4, 0.995, 0.95, 5, 1, True)
+            args.num_minibatches, args.value_loss) == (32, 256, 1e-4, 0.995, 0.95, 5, 1, "clipped")
     assert not getattr(args, "bidirectional", False)
 
 

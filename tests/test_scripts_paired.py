@@ -70,7 +70,8 @@ def kill_and_resume(cwd):
     deadline = time.time() + 300
     while time.time() < deadline:
         runs = cwd / "runs"
-        if runs.exists() and os.listdir(runs) and len(read_metrics(only_run_dir(cwd))) >= 2:
+        if runs.exists() and os.listdir(runs) and os.path.isfile(os.path.join(only_run_dir(cwd), "metrics.csv")) \
+                and len(read_metrics(only_run_dir(cwd))) >= 2:
             break
         time.sleep(0.02)
     process.send_signal(signal.SIGKILL)

@@ -1,0 +1,623 @@
+"""The CarRacing UPOMDP (SPEC section 2): gymnasium's car on tracks a teacher sketches.
+
+Everything an algorithm script needs: the level batch, the student env (one Box2D world per copy, the
+physics stepped in a loop over copies, the views rendered for all copies at once by
+envs/carracing_render.py), the teacher's MDP, the DR generator, mutation, level metrics, level images,
+the held-out tracks (F1 file, vanilla, built-ins; geometry in envs/carracing_tracks.py) and the
+paper's networks.
+
+Student observation: {"image": uint8 [N, 12, 96, 96]}, channels first: four RGB frames stacked oldest
+first (channels 3k..3k+2 are frame k, frame 3 the newest); an episode's first observation repeats its
+first frame four times (as the reference's frame stack). Action: Box(0, 1, (3,)), the Beta sample,
+mapped to steer = 2 a0 - 1, gas = a1, brake = a2, held for 8 physics frames (action repeat 8).
+
+    python -m envs.carracing convert formula1.py out.npz   # the reference's track file to our format
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+
+import Box2D
+import gymnasium as gym
+import numpy as np
+import torch
+from Box2D.b2 import contactListener
+from gymnasium.envs.box2d.car_dynamics import Car
+from torch import nn
+from torch.distributions import Beta, Categorical, Independent
+
+from envs.carracing_render import ROAD, STATE_SIZE, ViewRenderer, class_map, draw_trajectory, level_image, track_quads
+from envs.carracing_tracks import (
+    BUILTIN_FRAME_LIMITS,
+    BUILTIN_TRACKS,
+    FPS,
+    NUM_CONTROL_POINTS,
+    SKETCH_SIZE,
+    TRACK_WIDTH,
+    VANILLA_FRAME_LIMIT,
+    Track,
+    convert_formula1,
+    load_f1_tracks,
+    track_from_cells,
+    track_from_centreline,
+    track_from_control_points,
+    track_metrics,
+    vanilla_track,
+)
+from envs.levels import HeldOutLevel, LevelBatch
+from envs.nets import FeedForwardActorCritic, layer_init
+
+ACTION_REPEAT = 8
+FRAME_STACK = 4
+TRAIN_MAX_STEPS = 1000 // ACTION_REPEAT  # 1000 frames = 125 agent steps
+NUM_CELLS = SKETCH_SIZE * SKETCH_SIZE
+NOISE_DIM = 4
+DT = 1.0 / FPS
+VELOCITY_ITERATIONS, POSITION_ITERATIONS = 6 * 30, 2 * 30  # gymnasium's world.Step arguments
+FRAME_PENALTY = 0.1
+OUTSIDE_REWARD = -100.0
+# Training-only shaping (SPEC 2, the reference's CarRacingWrapper).
+DONE_BONUS = 100.0
+GRASS_PENALTY = 0.05
+EARLY_STOP_WINDOW = 100
+EARLY_STOP_MEAN = -0.1
+F1_ENV_VAR = "CLEANUED_F1_TRACKS"
+
+# Level.track values: -1 = built from the cells; then a registry of fixed tracks whose indices never
+# move: vanilla (the level's seed draws the track), the built-ins, then the F1 file's tracks by name.
+DESIGNED = -1
+VANILLA = 0
+BUILTIN_NAMES = tuple(BUILTIN_TRACKS)
+FIRST_F1 = 1 + len(BUILTIN_NAMES)
+EXCLUDED_F1 = ("LagunaSeca",)  # in the reference's file, not in the paper's benchmark (SPEC 2)
+
+
+@dataclasses.dataclass
+class CarRacingLevels(LevelBatch):
+    """A batch of tracks: cells int64 [B, 12] (the sketch cells of a designed track, any order), track
+    int64 [B] (-1: designed from the cells; >= 0: a fixed track of the registry above) and seed
+    int64 [B] (vanilla's track seed; unused otherwise)."""
+
+    cells: np.ndarray
+    track: np.ndarray
+    seed: np.ndarray
+
+
+def designed_levels(cells: np.ndarray) -> CarRacingLevels:
+    """Levels of designed tracks from sketch cells [B, 12]."""
+    cells = np.asarray(cells, dtype=np.int64)
+    return CarRacingLevels(cells, np.full(len(cells), DESIGNED, np.int64), np.zeros(len(cells), np.int64))
+
+
+def fixed_levels(track: int, seeds: np.ndarray) -> CarRacingLevels:
+    """Levels of one registry track, one per seed (the seed only matters for vanilla)."""
+    n = len(seeds)
+    return CarRacingLevels(np.zeros((n, NUM_CONTROL_POINTS), np.int64), np.full(n, track, np.int64), np.asarray(seeds, np.int64))
+
+
+_NOTICE_SHOWN = False
+
+
+def _f1_tracks_from_environment() -> dict | None:
+    """The F1 tracks of the file named by CLEANUED_F1_TRACKS, or None (with a one-time notice)."""
+    global _NOTICE_SHOWN
+    path = os.environ.get(F1_ENV_VAR)
+    if path:
+        return load_f1_tracks(path)
+    if not _NOTICE_SHOWN:
+        print(f"note: no F1 track file ({F1_ENV_VAR} / --f1-tracks unset): held-out CarRacing tracks are vanilla, {', '.join(BUILTIN_NAMES)}")
+        _NOTICE_SHOWN = True
+    return None
+
+
+class HeldOutTracks(dict):
+    """name -> HeldOutLevel; an unknown name raises ValueError listing the known ones."""
+
+    def __missing__(self, name):
+        raise ValueError(f"unknown CarRacing track {name!r}: expected one of {', '.join(self)}")
+
+
+# ---------------------------------------------------------------------------------------------------
+# The teacher's MDP (SPEC 2): 12 steps, each one cell of the 10x10 sketch.
+# ---------------------------------------------------------------------------------------------------
+class CarRacingTeacherMDP:
+    """PAIRED's adversary for CarRacing over n tracks at once. Action a in [0, 100) is sketch cell
+    (i, j) = (a % 10, a // 10), stored at sketch[j, i], so the flattened sketch is indexed by a (the
+    same convention as envs.carracing_tracks.cell_points). A used cell may not be chosen again (the
+    Teacher network masks them): choosing one raises ValueError. Observation: sketch float32
+    [n, 10, 10] (1 where a point was placed), time int64 [n] (0..12) and noise float32 [n, 4] U[0, 1)
+    drawn afresh from env.rng at every step."""
+
+    num_steps = NUM_CONTROL_POINTS
+    action_space = gym.spaces.Discrete(NUM_CELLS)
+    observation_space = gym.spaces.Dict(
+        {
+            "sketch": gym.spaces.Box(0, 1, (SKETCH_SIZE, SKETCH_SIZE), np.float32),
+            "time": gym.spaces.Discrete(NUM_CONTROL_POINTS + 1),
+            "noise": gym.spaces.Box(0, 1, (NOISE_DIM,), np.float32),
+        }
+    )
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+
+    def reset(self, n: int) -> dict:
+        """Start n empty sketches; returns the first observation."""
+        self.n = n
+        self.t = 0
+        self.cells = np.zeros((n, NUM_CONTROL_POINTS), dtype=np.int64)
+        self.sketch = np.zeros((n, NUM_CELLS), dtype=np.float32)
+        return self._observation()
+
+    def step(self, actions) -> tuple[dict, bool]:
+        """Place one cell per teacher; returns (observation, done), done after the 12th cell."""
+        a = np.asarray(actions, dtype=np.int64).reshape(self.n)
+        if self.t >= self.num_steps:
+            raise ValueError("the teacher's episode is over: call reset")
+        if np.any((a < 0) | (a >= NUM_CELLS)):
+            raise ValueError(f"teacher actions must be cells in [0, {NUM_CELLS})")
+        if np.any(self.sketch[np.arange(self.n), a] > 0):
+            raise ValueError("a teacher chose a sketch cell it had already used")
+        self.cells[:, self.t] = a
+        self.sketch[np.arange(self.n), a] = 1.0
+        self.t += 1
+        return self._observation(), self.t >= self.num_steps
+
+    def levels(self) -> CarRacingLevels:
+        """The designed tracks (cells in the order the teachers placed them)."""
+        return designed_levels(self.cells.copy())
+
+    def _observation(self) -> dict:
+        return {
+            "sketch": self.sketch.reshape(self.n, SKETCH_SIZE, SKETCH_SIZE).copy(),
+            "time": np.full(self.n, self.t, dtype=np.int64),
+            "noise": self.rng.random((self.n, NOISE_DIM), dtype=np.float32),
+        }
+
+
+# ---------------------------------------------------------------------------------------------------
+# Box2D plumbing: road tiles as sensor fixtures, a contact listener per world (gymnasium's rules).
+# ---------------------------------------------------------------------------------------------------
+class RoadTile:
+    """What a wheel's `tiles` set holds (gymnasium's Car.step reads `road_friction`)."""
+
+    __slots__ = ("index", "road_friction")
+
+    def __init__(self, index: int):
+        self.index = index
+        self.road_friction = 1.0
+
+
+_ROAD_TILES: list[RoadTile] = []
+
+
+def road_tiles(count: int) -> list[RoadTile]:
+    """Shared, stateless tile objects 0..count-1 (visits are recorded in the env's arrays)."""
+    while len(_ROAD_TILES) < count:
+        _ROAD_TILES.append(RoadTile(len(_ROAD_TILES)))
+    return _ROAD_TILES[:count]
+
+
+class TileContacts(contactListener):
+    """Gymnasium's FrictionDetector for one copy: a wheel touching a tile adds it to the wheel's set
+    (road friction); the first touch of a tile records the visit and its reward, 1000 / N."""
+
+    def __init__(self, env: CarRacingEnv, copy: int):
+        contactListener.__init__(self)
+        self.env = env
+        self.copy = copy
+
+    def BeginContact(self, contact):
+        self._contact(contact, True)
+
+    def EndContact(self, contact):
+        self._contact(contact, False)
+
+    def _contact(self, contact, begin: bool) -> None:
+        tile, wheel = contact.fixtureA.userData, contact.fixtureB.body.userData
+        if not isinstance(tile, RoadTile):
+            tile, wheel = contact.fixtureB.userData, contact.fixtureA.body.userData
+        if not isinstance(tile, RoadTile) or wheel is None or not hasattr(wheel, "tiles"):
+            return
+        if not begin:
+            wheel.tiles.discard(tile)
+            return
+        wheel.tiles.add(tile)
+        visited = self.env.visited[self.copy]
+        if not visited[tile.index]:
+            visited[tile.index] = True
+            self.env.tile_gain[self.copy] += self.env.reward_per_tile[self.copy]
+            self.env.visited_count[self.copy] += 1
+
+
+def build_world(env: CarRacingEnv, copy: int, track: Track) -> Box2D.b2World:
+    """A Box2D world holding the track's tiles: one static body, one sensor quad per tile, colliding
+    with wheels only (category 1, mask 0x20; gymnasium's hull contacts with tiles are ignored anyway).
+    One fixture definition is reused with new vertices per tile (as gymnasium does): several times
+    faster than building a definition per tile."""
+    world = Box2D.b2World((0, 0), contactListener=TileContacts(env, copy))
+    road = world.CreateStaticBody()
+    definition = Box2D.b2FixtureDef(shape=Box2D.b2PolygonShape(box=(1, 1)), isSensor=True)
+    definition.filter.categoryBits = 0x0001
+    definition.filter.maskBits = 0x0020
+    shape = definition.shape
+    for quad, tile in zip(track_quads(track, -TRACK_WIDTH, TRACK_WIDTH).tolist(), road_tiles(len(track))):
+        shape.vertices = quad
+        road.CreateFixture(definition).userData = tile
+    return world
+
+
+# ---------------------------------------------------------------------------------------------------
+# The student env.
+# ---------------------------------------------------------------------------------------------------
+class CarRacingEnv:
+    """The CarRacing UPOMDP over `num_envs` copies (SPEC 2). See the module docstring for the
+    observation and action. Reward per frame: +1000/N per newly visited tile, -0.1; leaving the
+    playfield: -100 (that frame's whole reward) and terminated; all tiles visited: terminated;
+    max_steps agent steps: truncated. With `training` True the reference's shaping is added per frame:
+    +100 on the frame an episode ends by itself (lap, playfield, time limit), -0.05 while the hull's
+    centre is off the road (from the track's geometry), and termination once the mean of the last 100
+    frame rewards (shaped, zeros before the episode's first frame) is <= -0.1."""
+
+    def __init__(self, num_envs: int = 16, seed: int = 0):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.num_envs = num_envs
+        self.rng = np.random.default_rng(seed)
+        self.single_observation_space = gym.spaces.Dict({"image": gym.spaces.Box(0, 255, (3 * FRAME_STACK, STATE_SIZE, STATE_SIZE), np.uint8)})
+        self.single_action_space = gym.spaces.Box(0.0, 1.0, (3,), np.float32)
+        self.Levels = CarRacingLevels
+        self.Student = CarRacingStudent
+        self.Teacher = CarRacingTeacher
+        self.solved_threshold = 900.0  # gymnasium's "solved" score
+        self.level_metric_names = ("track_length", "total_curvature", "sharp_turns")
+        self.level_generators = {"random": self.random_levels}
+        self.training = True
+        self.f1_tracks = _f1_tracks_from_environment()
+        self.f1_names = tuple(sorted(self.f1_tracks)) if self.f1_tracks else ()
+        if self.f1_tracks:  # the paper's validation tracks, or the file's first three if it lacks them
+            paper = tuple(name for name in ("Italy", "Singapore", "Germany") if name in self.f1_tracks)
+            others = tuple(name for name in self.f1_names if name not in EXCLUDED_F1)
+            self.validation_levels = ("vanilla",) + (paper or others[:3])
+        else:
+            self.validation_levels = ("vanilla", "Hairpins", "Chicanes")
+        self._fixed_track_cache: dict[int, Track] = {}
+        self.renderer = ViewRenderer()
+        self.keys: list = [None] * num_envs
+        self.tracks: list = [None] * num_envs
+        self.maps: list = [None] * num_envs
+        self.worlds: list = [None] * num_envs
+        self.cars: list = [None] * num_envs
+
+    def close(self) -> None:
+        """Drop the Box2D worlds (everything runs in this process). Safe to call twice."""
+        for i in range(self.num_envs):
+            if self.cars[i] is not None:
+                self.cars[i].destroy()
+        self.cars = [None] * self.num_envs
+        self.worlds = [None] * self.num_envs
+
+    # --- tracks of levels ------------------------------------------------------------------------
+    def track_of(self, levels: CarRacingLevels, i: int) -> Track:
+        """The Track of level i of a batch."""
+        kind = int(levels.track[i])
+        if kind == DESIGNED:
+            return track_from_cells(levels.cells[i])
+        if kind == VANILLA:
+            return vanilla_track(np.random.default_rng(int(levels.seed[i])))
+        if kind not in self._fixed_track_cache:
+            if 1 <= kind < FIRST_F1:
+                track = track_from_control_points(BUILTIN_TRACKS[BUILTIN_NAMES[kind - 1]])
+            elif FIRST_F1 <= kind < FIRST_F1 + len(self.f1_names):
+                track = track_from_centreline(self.f1_tracks[self.f1_names[kind - FIRST_F1]][0])
+            else:
+                raise ValueError(f"level track index {kind} is not a known track (F1 tracks need {F1_ENV_VAR})")
+            self._fixed_track_cache[kind] = track
+        return self._fixed_track_cache[kind]
+
+    @staticmethod
+    def level_key(levels: CarRacingLevels, i: int) -> tuple:
+        """What identifies a level's track (for reusing worlds and class maps across resets)."""
+        kind = int(levels.track[i])
+        if kind == DESIGNED:
+            return (kind,) + tuple(sorted(levels.cells[i].tolist()))
+        return (kind, int(levels.seed[i])) if kind == VANILLA else (kind,)
+
+    # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------
+    def teacher(self) -> CarRacingTeacherMDP:
+        """PAIRED's adversary MDP, its noise drawn from env.rng."""
+        return CarRacingTeacherMDP(self.rng)
+
+    def random_levels(self, n: int, rng: np.random.Generator) -> CarRacingLevels:
+        """The DR generator: 12 distinct uniformly random sketch cells per track."""
+        return designed_levels(np.argsort(rng.random((n, NUM_CELLS)), axis=1)[:, :NUM_CONTROL_POINTS])
+
+    def mutate(self, levels: CarRacingLevels, rng: np.random.Generator, num_edits: int = 3) -> CarRacingLevels:
+        """Edited copies: `num_edits` times, one random control point of each designed track moves to a
+        random one of its up to 8 neighbouring cells that is on the grid and free (it stays if none
+        is), so all 12 cells stay distinct. Fixed tracks are returned unchanged."""
+        child = levels.copy()
+        n = len(child)
+        steps = np.array([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)])
+        index = np.arange(n)
+        designed = child.track == DESIGNED
+        for _ in range(num_edits):
+            which = rng.integers(0, NUM_CONTROL_POINTS, n)
+            cell = child.cells[index, which]
+            i, j = cell[:, None] % SKETCH_SIZE + steps[None, :, 0], cell[:, None] // SKETCH_SIZE + steps[None, :, 1]
+            on_grid = (i >= 0) & (i < SKETCH_SIZE) & (j >= 0) & (j < SKETCH_SIZE)
+            target = np.where(on_grid, j * SKETCH_SIZE + i, -1)
+            free = on_grid & ~np.any(target[:, :, None] == child.cells[:, None, :], axis=2)
+            score = np.where(free, rng.random(free.shape), -1.0)
+            choice = score.argmax(axis=1)
+            move = designed & free[index, choice]
+            child.cells[index[move], which[move]] = target[index[move], choice[move]]
+        return child
+
+    def test_levels(self) -> HeldOutTracks:
+        """Held out: vanilla (a fresh gymnasium track per episode) plus the 20 F1 tracks of the file
+        named by CLEANUED_F1_TRACKS (max_steps = the track's frame limit / 8, rounded up), or, without
+        that file, the built-in Hairpins, Chicanes and LongStraights."""
+
+        def vanilla(n, rng):
+            """n gymnasium tracks, their seeds drawn from rng."""
+            return fixed_levels(VANILLA, rng.integers(0, 2**31 - 1, n))
+
+        def fixed(track):
+            """The generator of one fixed track."""
+            return lambda n, rng: fixed_levels(track, np.zeros(n, np.int64))
+
+        held_out = HeldOutTracks(vanilla=HeldOutLevel(vanilla, VANILLA_FRAME_LIMIT // ACTION_REPEAT))
+        if self.f1_tracks:
+            for k, name in enumerate(self.f1_names):
+                if name not in EXCLUDED_F1:
+                    held_out[name] = HeldOutLevel(fixed(FIRST_F1 + k), math.ceil(self.f1_tracks[name][1] / ACTION_REPEAT))
+        else:
+            for k, name in enumerate(BUILTIN_NAMES):
+                held_out[name] = HeldOutLevel(fixed(1 + k), math.ceil(BUILTIN_FRAME_LIMITS[name] / ACTION_REPEAT))
+        return held_out
+
+    def level_metrics(self, levels: CarRacingLevels) -> dict[str, np.ndarray]:
+        """Track length (world units), total curvature (sum of absolute turning angles, radians) and
+        the number of sharp turns (stretches with kerbs), per level."""
+        values = np.array([track_metrics(self.track_of(levels, i)) for i in range(len(levels))], dtype=np.float64).reshape(-1, 3)
+        return dict(zip(self.level_metric_names, values.T))
+
+    def render(self, levels: CarRacingLevels) -> np.ndarray:
+        """Top-down images [B, 128, 128, 3] of the whole playfield of each level (start in red)."""
+        return np.stack([level_image(self.track_of(levels, i)) for i in range(len(levels))])
+
+    def render_trajectory(self, levels: CarRacingLevels, i: int, xy: np.ndarray) -> np.ndarray:
+        """Level i's top-down image with a driven path xy [T, 2] (world units, e.g. car_positions()
+        collected over an episode) drawn in blue."""
+        track = self.track_of(levels, i)
+        return draw_trajectory(level_image(track), xy, track.playfield)
+
+    def car_positions(self) -> np.ndarray:
+        """The hull position (x, y) of every copy [N, 2]."""
+        return np.array([tuple(car.hull.position) for car in self.cars])
+
+    # --- the vectorized student env ------------------------------------------------------------
+    def reset(self, levels: CarRacingLevels, max_steps: int | None = None) -> dict:
+        """Copy i now plays levels[i] from its start; returns the first observations. Worlds and class
+        maps of copies whose track is unchanged are kept."""
+        if len(levels) != self.num_envs:
+            raise ValueError(f"reset got {len(levels)} levels for {self.num_envs} env copies")
+        self.max_steps = TRAIN_MAX_STEPS if max_steps is None else int(max_steps)
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        keys = [self.level_key(levels, i) for i in range(self.num_envs)]
+        known = {key: (self.tracks[i], self.maps[i]) for i, key in enumerate(self.keys) if key is not None}
+        n = self.num_envs
+        self.tile_gain = np.zeros(n)
+        self.visited_count = np.zeros(n, dtype=np.int64)
+        for i, key in enumerate(keys):
+            if key != self.keys[i] or self.worlds[i] is None:
+                if key not in known:
+                    track = self.track_of(levels, i)
+                    known[key] = (track, class_map(track))
+                self.tracks[i], self.maps[i] = known[key]
+                if self.cars[i] is not None:
+                    self.cars[i].destroy()
+                    self.cars[i] = None
+                self.worlds[i] = build_world(self, i, self.tracks[i])
+        self.keys = keys
+        self.tile_count = np.array([len(t) for t in self.tracks], dtype=np.int64)
+        self.reward_per_tile = 1000.0 / self.tile_count
+        self.playfield = np.array([t.playfield for t in self.tracks])
+        self.visited = [np.zeros(len(t), dtype=bool) for t in self.tracks]
+        self.renderer.set_maps(self.maps, self.playfield)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.history = np.zeros((n, EARLY_STOP_WINDOW))
+        self.history_pos = np.zeros(n, dtype=np.int64)
+        self.frames = np.zeros((n, 3 * FRAME_STACK, STATE_SIZE, STATE_SIZE), dtype=np.uint8)
+        everyone = np.ones(n, dtype=bool)
+        self._restart(everyone)
+        self._observe(everyone)
+        return {"image": self.frames.copy()}
+
+    def step(self, actions: np.ndarray):
+        """Hold each copy's action for 8 physics frames (a copy whose episode ends stops there), then
+        render. Returns obs, reward float32 [N], terminated, truncated, {}; ended episodes restart
+        their level at once and the returned observation is the new episode's first."""
+        a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 3), 0.0, 1.0)
+        steer, gas, brake = 2.0 * a[:, 0] - 1.0, a[:, 1], a[:, 2]
+        n = self.num_envs
+        reward = np.zeros(n)
+        terminated = np.zeros(n, dtype=bool)
+        running = np.ones(n, dtype=bool)
+        x, y = np.zeros(n), np.zeros(n)
+        for _ in range(ACTION_REPEAT):
+            active = np.nonzero(running)[0]
+            if len(active) == 0:
+                break
+            for i in active.tolist():
+                car = self.cars[i]
+                car.steer(-steer[i])  # gymnasium: car.steer(-action[0])
+                car.gas(gas[i])
+                car.brake(brake[i])
+                car.step(DT)
+                self.worlds[i].Step(DT, VELOCITY_ITERATIONS, POSITION_ITERATIONS)
+                x[i], y[i] = car.hull.position
+            frame_reward = self.tile_gain[active] - FRAME_PENALTY
+            self.tile_gain[active] = 0.0
+            outside = (np.abs(x[active]) > self.playfield[active]) | (np.abs(y[active]) > self.playfield[active])
+            lap = self.visited_count[active] == self.tile_count[active]
+            frame_reward = np.where(outside, OUTSIDE_REWARD, frame_reward)
+            ended = outside | lap
+            if self.training:
+                frame_reward += DONE_BONUS * ended
+                off_road = self.renderer.classes_at(x, y)[active] != ROAD
+                frame_reward -= GRASS_PENALTY * off_road
+                slot = self.history_pos[active]
+                self.history[active, slot] = frame_reward
+                self.history_pos[active] = (slot + 1) % EARLY_STOP_WINDOW
+                # The reference stops at mean <= -0.1; the tolerance keeps float rounding of 100
+                # frames of exactly -0.1 from deciding it.
+                ended |= self.history[active].mean(axis=1) <= EARLY_STOP_MEAN + 1e-9
+            reward[active] += frame_reward
+            terminated[active] = ended
+            running[active] = ~ended
+        self.steps += 1
+        truncated = (self.steps >= self.max_steps) & ~terminated
+        if self.training:
+            reward += DONE_BONUS * truncated  # the reference's time limit ends the episode as a done
+        done = terminated | truncated
+        if done.any():
+            self._restart(done)
+        self._observe(done)
+        return {"image": self.frames.copy()}, reward.astype(np.float32), terminated, truncated, {}
+
+    def _restart(self, which: np.ndarray) -> None:
+        """Start the episodes of the chosen copies: fresh car on the start point, no tile visited, and
+        the one action-free physics frame gymnasium's reset runs (its tile rewards count in the first
+        step's reward, as in gymnasium)."""
+        for i in np.nonzero(which)[0].tolist():
+            if self.cars[i] is not None:
+                self.cars[i].destroy()
+            self.visited[i][:] = False
+            self.visited_count[i] = 0
+            self.tile_gain[i] = 0.0
+            track = self.tracks[i]
+            self.cars[i] = Car(self.worlds[i], float(track.beta[0]), float(track.xy[0, 0]), float(track.xy[0, 1]))
+            self.cars[i].step(DT)
+            self.worlds[i].Step(DT, VELOCITY_ITERATIONS, POSITION_ITERATIONS)
+        self.steps[which] = 0
+        self.history[which] = 0.0
+        self.history_pos[which] = 0
+
+    def _car_states(self) -> dict:
+        """The car quantities the view shows, one row per copy (wheel poses in the hull's frame)."""
+        n = self.num_envs
+        state = {key: np.zeros(n) for key in ("x", "y", "angle", "speed", "steering", "angular_velocity")}
+        state.update(wheel_xy=np.zeros((n, 4, 2)), wheel_angle=np.zeros((n, 4)), wheel_phase=np.zeros((n, 4)), wheel_omega=np.zeros((n, 4)))
+        for i, car in enumerate(self.cars):
+            hull = car.hull
+            hx, hy = hull.position
+            angle = hull.angle
+            cos, sin = math.cos(angle), math.sin(angle)
+            vx, vy = hull.linearVelocity
+            state["x"][i], state["y"][i], state["angle"][i] = hx, hy, angle
+            state["speed"][i] = math.hypot(vx, vy)
+            state["angular_velocity"][i] = hull.angularVelocity
+            state["steering"][i] = car.wheels[0].joint.angle
+            for k, wheel in enumerate(car.wheels):
+                wx, wy = wheel.position
+                dx, dy = wx - hx, wy - hy
+                state["wheel_xy"][i, k] = (cos * dx + sin * dy, -sin * dx + cos * dy)
+                state["wheel_angle"][i, k] = wheel.angle - angle
+                state["wheel_phase"][i, k] = wheel.phase
+                state["wheel_omega"][i, k] = wheel.omega
+        return state
+
+    def _observe(self, fresh: np.ndarray) -> None:
+        """Render every copy's view and push it on its frame stack; copies starting an episode
+        (`fresh`) get their first frame in all four slots."""
+        view = self.renderer.render(self._car_states())
+        self.frames[:, :-3] = self.frames[:, 3:]
+        self.frames[:, -3:] = view
+        if fresh.any():
+            self.frames[fresh] = np.tile(view[fresh], (1, FRAME_STACK, 1, 1))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Networks (SPEC 2), with the calling convention of DESIGN.md.
+# ---------------------------------------------------------------------------------------------------
+class CarRacingStudent(FeedForwardActorCritic):
+    """Conv 12->8 (4, s2) -> 16 (3, s2) -> 32 (3, s2) -> 64 (3, s2) -> 128 (3, s1) -> 256 (3, s1), ReLU,
+    on the 96x96 stack (pixels x/128 - 1) -> 256 features; actor FC 100 -> alpha, beta = 1 + softplus
+    (an Independent Beta over the 3 action dims); critic FC 100 -> 1."""
+
+    def __init__(self):
+        super().__init__()
+        channels = [3 * FRAME_STACK, 8, 16, 32, 64, 128, 256]
+        kernels, strides = [4, 3, 3, 3, 3, 3], [2, 2, 2, 2, 1, 1]
+        layers = []
+        for k in range(6):
+            layers += [layer_init(nn.Conv2d(channels[k], channels[k + 1], kernels[k], strides[k])), nn.ReLU()]
+        self.conv = nn.Sequential(*layers, nn.Flatten())
+        self.actor = nn.Sequential(layer_init(nn.Linear(256, 100)), nn.ReLU())
+        self.alpha = layer_init(nn.Linear(100, 3), gain=0.01)
+        self.beta = layer_init(nn.Linear(100, 3), gain=0.01)
+        self.critic = nn.Sequential(layer_init(nn.Linear(256, 100)), nn.ReLU(), layer_init(nn.Linear(100, 1), gain=1.0))
+
+    def dist_and_value(self, obs: dict, state=None, done=None):
+        """-> Independent Beta over the 3 action dims, value [B]."""
+        features = self.conv(obs["image"].float() / 128.0 - 1.0)
+        hidden = self.actor(features)
+        alpha = 1.0 + nn.functional.softplus(self.alpha(hidden))
+        beta = 1.0 + nn.functional.softplus(self.beta(hidden))
+        return Independent(Beta(alpha, beta), 1), self.critic(features).squeeze(-1)
+
+    def sample(self, dist):
+        """A Beta sample kept strictly inside (0, 1), so its log-probability stays finite."""
+        return dist.sample().clamp(1e-6, 1 - 1e-6)
+
+
+class CarRacingTeacher(FeedForwardActorCritic):
+    """Conv 1->8 (2x2) -> Conv 8->16 (2x2), ReLU, on the 10x10 sketch -> 1024; time one-hot (13) ->
+    Linear 8; noise (4); concat -> Linear 256, ReLU -> 100 logits (used cells masked) and a value."""
+
+    def __init__(self, num_steps: int = NUM_CONTROL_POINTS):
+        super().__init__()
+        self.num_steps = num_steps
+        self.conv = nn.Sequential(layer_init(nn.Conv2d(1, 8, 2)), nn.ReLU(), layer_init(nn.Conv2d(8, 16, 2)), nn.ReLU(), nn.Flatten())
+        self.time_embed = layer_init(nn.Linear(num_steps + 1, 8))
+        self.hidden = nn.Sequential(layer_init(nn.Linear(16 * 8 * 8 + 8 + NOISE_DIM, 256)), nn.ReLU())
+        self.actor = layer_init(nn.Linear(256, NUM_CELLS), gain=0.01)
+        self.critic = layer_init(nn.Linear(256, 1), gain=1.0)
+
+    def dist_and_value(self, obs: dict, state=None, done=None):
+        """-> Categorical over the 100 cells (used ones masked), value [B]."""
+        sketch = obs["sketch"].float()
+        time = nn.functional.one_hot(obs["time"].long(), self.num_steps + 1).float()
+        hidden = self.hidden(torch.cat([self.conv(sketch.unsqueeze(1)), self.time_embed(time), obs["noise"].float()], dim=1))
+        # Used cells can never be chosen again. Logit a belongs to cell a, which the MDP stores at
+        # sketch[a // 10, a % 10], so the mask is the row-major flattened sketch. (The reference
+        # flattened a transposed sketch here, masking the wrong cells: a bug, not reproduced.)
+        used = sketch.reshape(len(sketch), NUM_CELLS) > 0.5
+        logits = self.actor(hidden).masked_fill(used, torch.finfo(torch.float32).min)
+        return Categorical(logits=logits), self.critic(hidden).squeeze(-1)
+
+
+def main(argv=None) -> None:
+    """python -m envs.carracing convert formula1.py out.npz: the reference's formula1.py (a Python file
+    of RaceTrack(name=..., xy=[...]) definitions, parsed, not run) to an .npz and its _meta.json."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 3 or args[0] != "convert":
+        print("usage: python -m envs.carracing convert formula1.py out.npz", file=sys.stderr)
+        sys.exit(2)
+    try:
+        names = convert_formula1(args[1], args[2])
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)
+    print(f"wrote {len(names)} tracks to {args[2]}: {', '.join(names)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,342 @@
+"""The CarRacing renderer (SPEC 2: gymnasium's scene), numpy-vectorized over env copies.
+
+Gymnasium draws about 800 polygons per frame with pygame on a 1000x800 surface and scales it down to
+96x96; here each level's track is rasterized once, at reset, into a top-down map of classes (outside,
+grass, grass patch, road, white and red kerb) at PIXELS_PER_UNIT cells per world unit. An observation is
+then one nearest-neighbour gather of the 96x96 window around each car, rotated with the car as
+gymnasium's camera (the hull points up, the car three quarters down the image, gymnasium's zoom and the
+same non-square pixel footprint its 1000x800 -> 96x96 scaling gives), plus the car (hull, wheels with
+their rotating stripe) and the indicator bar (true speed, four ABS sensors, steering, gyroscope), drawn
+as gymnasium draws them, and one palette lookup. Pixels are lit when their centre is inside a shape.
+
+Left out of gymnasium's picture: the zoom animation of the first second (the reference disables it),
+skid marks (not drawn in state pixels), the score digits in the bar, and the 1-2% brightness
+variation between untouched road tiles (all road has the colour of a touched tile).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from envs.carracing_tracks import BORDER, TRACK_WIDTH, Track
+
+STATE_SIZE = 96
+WINDOW_W, WINDOW_H = 1000, 800  # gymnasium's surface, scaled to 96x96
+ZOOM = 2.7 * 6.0  # gymnasium's ZOOM * SCALE: surface pixels per world unit
+UNITS_PER_PIXEL_X = WINDOW_W / STATE_SIZE / ZOOM  # 0.643 world units per state pixel across
+UNITS_PER_PIXEL_Y = WINDOW_H / STATE_SIZE / ZOOM  # 0.514 along
+CAR_ROW = STATE_SIZE * 3 / 4  # the car's position in the image: column 48, row 72 (continuous)
+CAR_COLUMN = STATE_SIZE / 2
+PIXELS_PER_UNIT = 2.0  # class-map resolution
+# OUTSIDE cells around the playfield in a class map: the farthest pixel of a view is 48.2 world units
+# from the car, whose rendered centre is clamped to 5 units beyond the playfield, so no lookup leaves
+# the map (and none needs clipping).
+MAP_MARGIN = math.ceil(55 * PIXELS_PER_UNIT)
+
+# Car geometry (gymnasium's car_dynamics, times SIZE = 0.02).
+CAR_SIZE = 0.02
+HULL_POLYGONS = [
+    [(-60, +130), (+60, +130), (+60, +110), (-60, +110)],
+    [(-15, +120), (+15, +120), (+20, +20), (-20, 20)],
+    [(+25, +20), (+50, -10), (+50, -40), (+20, -90), (-20, -90), (-50, -40), (-50, -10), (-25, +20)],
+    [(-50, -120), (+50, -120), (+50, -90), (-50, -90)],
+]
+WHEEL_HALF_WIDTH = 14 * CAR_SIZE
+WHEEL_HALF_LENGTH = 27 * CAR_SIZE
+
+# Classes and their colours (gymnasium's default colours).
+OUTSIDE, BACKGROUND, GRASS, ROAD, KERB_WHITE, KERB_RED, HULL, WHEEL, WHEEL_STRIPE, BAR = range(10)
+SPEED, ABS_FRONT, ABS_REAR, STEERING, GYROSCOPE = range(10, 15)
+PALETTE = np.array(
+    [
+        [0, 0, 0],  # OUTSIDE
+        [102, 204, 102],  # BACKGROUND (gymnasium's bg_color)
+        [102, 230, 102],  # GRASS patch (grass_color)
+        [102, 102, 102],  # ROAD (road_color)
+        [255, 255, 255],  # KERB_WHITE
+        [255, 0, 0],  # KERB_RED
+        [204, 0, 0],  # HULL (0.8, 0, 0)
+        [0, 0, 0],  # WHEEL
+        [77, 77, 77],  # WHEEL_STRIPE
+        [0, 0, 0],  # BAR
+        [255, 255, 255],  # SPEED
+        [0, 0, 255],  # ABS_FRONT
+        [51, 0, 255],  # ABS_REAR
+        [0, 255, 0],  # STEERING
+        [255, 0, 0],  # GYROSCOPE
+    ],
+    dtype=np.uint8,
+)
+PALETTE_CHANNELS = np.ascontiguousarray(PALETTE.T)  # [3, classes]: one lookup per channel gives CHW
+
+# The car's neighbourhood in the image, where wheels are drawn (rows 60-83, columns 40-55).
+WHEEL_ROWS = slice(60, 84)
+WHEEL_COLUMNS = slice(40, 56)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Class maps: a track rasterized once per level.
+# ---------------------------------------------------------------------------------------------------
+def fill_triangles(raster: np.ndarray, triangles: np.ndarray, value: int) -> None:
+    """Set to `value` every cell of raster [R, C] whose centre is inside one of triangles [Q, 3, 2]
+    ((column, row) in continuous raster coordinates: cell (r, c) spans [c, c+1) x [r, r+1)).
+
+    Scanlines for all triangles at once: each (triangle, row) pair gives a span of columns between its
+    two edge crossings; the spans' cells are enumerated with one repeat + arange and written at once."""
+    if len(triangles) == 0:
+        return
+    rows_total, cols_total = raster.shape
+    ys = triangles[..., 1]
+    first = np.maximum(np.ceil(ys.min(axis=1) - 0.5).astype(np.int64), 0)
+    last = np.minimum(np.floor(ys.max(axis=1) - 0.5).astype(np.int64), rows_total - 1)
+    span = int((last - first).max()) + 1
+    if span <= 0:
+        return
+    rows = first[:, None] + np.arange(span)[None, :]
+    centre = rows + 0.5
+    left = np.full(rows.shape, np.inf)
+    right = np.full(rows.shape, -np.inf)
+    for e in range(3):
+        p, q = triangles[:, e, None, :], triangles[:, (e + 1) % 3, None, :]
+        crosses = ((p[..., 1] <= centre) & (centre < q[..., 1])) | ((q[..., 1] <= centre) & (centre < p[..., 1]))
+        dy = np.where(crosses, q[..., 1] - p[..., 1], 1.0)
+        x = p[..., 0] + (centre - p[..., 1]) * (q[..., 0] - p[..., 0]) / dy
+        left = np.where(crosses, np.minimum(left, x), left)
+        right = np.where(crosses, np.maximum(right, x), right)
+    start = np.maximum(np.ceil(left - 0.5), 0)
+    stop = np.minimum(np.floor(right - 0.5), cols_total - 1)
+    ok = (rows <= last[:, None]) & (start <= stop)
+    begin = rows[ok] * cols_total + start[ok].astype(np.int64)
+    length = (stop[ok] - start[ok]).astype(np.int64) + 1
+    offsets = np.repeat(begin - (np.cumsum(length) - length), length)
+    raster.reshape(-1)[offsets + np.arange(len(offsets))] = value
+
+
+_BASE_MAPS: dict = {}
+
+
+def base_map(playfield: float, pixels_per_unit: float, margin: int) -> np.ndarray:
+    """The class map of an empty playfield: grass with the lighter patches of gymnasium (a checkerboard
+    quarter of squares of playfield/20, as the reference draws them), inside a ring of `margin`
+    OUTSIDE cells (black, as gymnasium's surface beyond the playfield)."""
+    key = (playfield, pixels_per_unit, margin)
+    if key not in _BASE_MAPS:
+        cells = math.ceil(2 * playfield * pixels_per_unit)
+        centre = (np.arange(cells) + 0.5) / pixels_per_unit - playfield
+        patch = np.floor(centre / (playfield / 20)).astype(np.int64) % 2 == 0
+        inner = np.where(patch[:, None] & patch[None, :], GRASS, BACKGROUND).astype(np.uint8)
+        _BASE_MAPS[key] = np.pad(inner, margin, constant_values=OUTSIDE)
+    return _BASE_MAPS[key]
+
+
+def track_quads(track: Track, inner: float, outer: float, side: np.ndarray | None = None) -> np.ndarray:
+    """Quads [T, 4, 2] of each tile between offsets inner..outer from the centreline along the cross
+    direction (road: -W..W; kerb: side*W..side*(W+BORDER)); tile k spans points k - 1 and k."""
+    normal = np.stack([np.cos(track.beta), np.sin(track.beta)], axis=1)
+    scale_in = inner if side is None else inner * side[:, None]
+    scale_out = outer if side is None else outer * side[:, None]
+    here_in, here_out = track.xy + scale_in * normal, track.xy + scale_out * normal
+    prev_xy, prev_normal = np.roll(track.xy, 1, axis=0), np.roll(normal, 1, axis=0)
+    prev_in, prev_out = prev_xy + scale_in * prev_normal, prev_xy + scale_out * prev_normal
+    return np.stack([here_in, here_out, prev_out, prev_in], axis=1)
+
+
+def quads_to_triangles(quads: np.ndarray) -> np.ndarray:
+    """Each quad [Q, 4, 2] as two triangles (0, 1, 2) and (0, 2, 3): [2Q, 3, 2]."""
+    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
+def class_map(track: Track, pixels_per_unit: float = PIXELS_PER_UNIT, margin: int = MAP_MARGIN) -> np.ndarray:
+    """The track's class map [R, R] (row 0 at the bottom: y = -playfield - margin cells): grass, then
+    kerbs, then road on top. World point (x, y) is cell (floor((y + playfield) * ppu) + margin,
+    floor((x + playfield) * ppu) + margin)."""
+    raster = base_map(track.playfield, pixels_per_unit, margin).copy()
+
+    def to_raster(xy):
+        """World points to continuous map coordinates."""
+        return (xy + track.playfield) * pixels_per_unit + margin
+
+    kerbs = track_quads(track, TRACK_WIDTH, TRACK_WIDTH + BORDER, side=track.kerb_side.astype(np.float64))
+    for stripe, value in ((0, KERB_WHITE), (1, KERB_RED)):
+        chosen = track.kerb & (track.stripe == stripe)
+        fill_triangles(raster, quads_to_triangles(to_raster(kerbs[chosen])), value)
+    fill_triangles(raster, quads_to_triangles(to_raster(track_quads(track, -TRACK_WIDTH, TRACK_WIDTH))), ROAD)
+    return raster
+
+
+# ---------------------------------------------------------------------------------------------------
+# Top-down images of whole levels, and driven trajectories over them.
+# ---------------------------------------------------------------------------------------------------
+LEVEL_IMAGE_SIZE = 128
+TRAJECTORY_COLOUR = np.array([40, 60, 230], dtype=np.uint8)
+START_COLOUR = np.array([230, 40, 40], dtype=np.uint8)
+
+
+def level_image(track: Track, size: int = LEVEL_IMAGE_SIZE) -> np.ndarray:
+    """A top-down RGB image [size, size, 3] of the whole playfield (north up), the start marked red."""
+    ppu = size / (2 * track.playfield)
+    image = PALETTE[class_map(track, ppu, margin=0)[::-1]]
+    return draw_trajectory(image, track.xy[:1], track.playfield, colour=START_COLOUR, radius=1)
+
+
+def draw_trajectory(image: np.ndarray, xy: np.ndarray, playfield: float, colour=TRAJECTORY_COLOUR, radius: int = 0) -> np.ndarray:
+    """A copy of a level image with world points xy [T, 2] (e.g. a driven path) marked in `colour`."""
+    out = image.copy()
+    size = out.shape[0]
+    pixel = np.floor((np.asarray(xy, dtype=np.float64) + playfield) * size / (2 * playfield)).astype(np.int64)
+    for dr in range(-radius, radius + 1):
+        for dc in range(-radius, radius + 1):
+            rows = np.clip(size - 1 - pixel[:, 1] + dr, 0, size - 1)
+            cols = np.clip(pixel[:, 0] + dc, 0, size - 1)
+            out[rows, cols] = colour
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# The student's view.
+# ---------------------------------------------------------------------------------------------------
+def _pixel_offsets() -> tuple[np.ndarray, np.ndarray]:
+    """World offsets (across, along) [96, 96] of each state pixel's centre from the car, in the car's
+    frame (along = the hull's forward axis, up in the image; across = its right)."""
+    centres = np.arange(STATE_SIZE) + 0.5
+    across = (centres - CAR_COLUMN) * UNITS_PER_PIXEL_X
+    along = (CAR_ROW - centres) * UNITS_PER_PIXEL_Y
+    return np.broadcast_to(across[None, :], (STATE_SIZE, STATE_SIZE)), np.broadcast_to(along[:, None], (STATE_SIZE, STATE_SIZE))
+
+
+def _inside_convex(px: np.ndarray, py: np.ndarray, polygon) -> np.ndarray:
+    """Points inside a convex polygon (either winding)."""
+    polygon = np.asarray(polygon, dtype=np.float64)
+    signs = []
+    for k in range(len(polygon)):
+        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % len(polygon)]
+        signs.append((bx - ax) * (py - ay) - (by - ay) * (px - ax))
+    signs = np.stack(signs)
+    return np.all(signs >= 0, axis=0) | np.all(signs <= 0, axis=0)
+
+
+class ViewRenderer:
+    """Renders the 96x96 views of all copies at once from their class maps and car states."""
+
+    def __init__(self):
+        self.across, self.along = _pixel_offsets()
+        self.across_flat = (self.across.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)  # in map cells
+        self.along_flat = (self.along.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)
+        self.hull_mask = np.zeros((STATE_SIZE, STATE_SIZE), dtype=bool)
+        for polygon in HULL_POLYGONS:
+            self.hull_mask |= _inside_convex(self.across, self.along, np.array(polygon) * CAR_SIZE)
+        self.wheel_across = self.across[WHEEL_ROWS, WHEEL_COLUMNS]
+        self.wheel_along = self.along[WHEEL_ROWS, WHEEL_COLUMNS]
+        self.bar_centres = np.arange(STATE_SIZE) + 0.5
+
+    def set_maps(self, maps: list[np.ndarray], playfields: np.ndarray) -> None:
+        """The class map of each copy (copies may share one map object: it is stored once)."""
+        unique = {}
+        for m in maps:
+            unique.setdefault(id(m), m)
+        offsets, start = {}, 0
+        for key, m in unique.items():
+            offsets[key] = start
+            start += m.size
+        self.flat = np.empty(start, dtype=np.uint8)
+        for key, m in unique.items():
+            self.flat[offsets[key] : offsets[key] + m.size] = m.reshape(-1)
+        self.offset = np.array([offsets[id(m)] for m in maps], dtype=np.int32)
+        self.width = np.array([m.shape[0] for m in maps], dtype=np.int32)
+        self.playfield = np.asarray(playfields, dtype=np.float64)
+
+    def _map_index(self, x: np.ndarray, y: np.ndarray, angle: np.ndarray, across: np.ndarray, along: np.ndarray) -> np.ndarray:
+        """Flat indices into the stored maps [N, P] of the points at offsets (across, along) [P] (map
+        cells) in the frame of a car at x, y with hull angle `angle` [N] (copy i's points in copy i's
+        map). The
+        centre is clamped to 5 units beyond the playfield (rendered cars are inside it), so every
+        coordinate is positive and truncation is the floor."""
+        playfield = self.playfield
+        cx = np.clip(x, -playfield - 5, playfield + 5)
+        cy = np.clip(y, -playfield - 5, playfield + 5)
+        col0 = ((cx + playfield) * PIXELS_PER_UNIT + MAP_MARGIN).astype(np.float32)[:, None]
+        row0 = ((cy + playfield) * PIXELS_PER_UNIT + MAP_MARGIN).astype(np.float32)[:, None]
+        cos = np.cos(angle).astype(np.float32)[:, None]
+        sin = np.sin(angle).astype(np.float32)[:, None]
+        col = (col0 + cos * across - sin * along).astype(np.int32)
+        row = (row0 + sin * across + cos * along).astype(np.int32)
+        row *= self.width[:, None]
+        row += col
+        row += self.offset[:, None]
+        return row
+
+    def classes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The class under world point (x[i], y[i]) in copy i's map [N] (the grass penalty's geometry)."""
+        origin = np.zeros(1, np.float32)
+        return self.flat[self._map_index(x, y, np.zeros(len(x)), origin, origin)[:, 0]]
+
+    def render(self, car: dict) -> np.ndarray:
+        """uint8 [N, 3, 96, 96] views from car states (arrays with a leading copy axis): hull x, y,
+        angle; wheel_xy [N, 4, 2] and wheel_angle [N, 4] relative to the hull (in its frame),
+        wheel_phase [N, 4], speed, wheel_omega [N, 4], steering (front-left joint angle), angular
+        velocity."""
+        count = len(car["x"])
+        index = self._map_index(car["x"], car["y"], car["angle"], self.across_flat, self.along_flat)
+        classes = self.flat[index].reshape(count, STATE_SIZE, STATE_SIZE)
+        self._draw_wheels(classes, car)
+        classes[:, self.hull_mask] = HULL
+        self._draw_indicators(classes, car)
+        lookup = classes.astype(np.intp)
+        view = np.empty((count, 3, STATE_SIZE, STATE_SIZE), dtype=np.uint8)
+        for channel in range(3):
+            view[:, channel] = PALETTE_CHANNELS[channel][lookup]
+        return view
+
+    def _draw_wheels(self, classes: np.ndarray, car: dict) -> None:
+        """Each wheel as gymnasium draws it: a black rectangle at the wheel's pose, then a grey stripe
+        between heights R cos(phase) and R cos(phase + 1.2) while that part faces the viewer."""
+        dx = self.wheel_across[None, None] - car["wheel_xy"][:, :, 0, None, None]
+        dy = self.wheel_along[None, None] - car["wheel_xy"][:, :, 1, None, None]
+        cos, sin = np.cos(car["wheel_angle"])[..., None, None], np.sin(car["wheel_angle"])[..., None, None]
+        u = dx * cos + dy * sin
+        v = -dx * sin + dy * cos
+        wheel = (np.abs(u) <= WHEEL_HALF_WIDTH) & (np.abs(v) <= WHEEL_HALF_LENGTH)
+        phase = car["wheel_phase"]
+        s1, s2 = np.sin(phase), np.sin(phase + 1.2)
+        c1 = np.where(s1 > 0, np.sign(np.cos(phase)), np.cos(phase))
+        c2 = np.where(s2 > 0, np.sign(np.cos(phase + 1.2)), np.cos(phase + 1.2))
+        shown = ~((s1 > 0) & (s2 > 0))
+        low = (np.minimum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
+        high = (np.maximum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
+        stripe = shown[..., None, None] & (np.abs(u) <= WHEEL_HALF_WIDTH) & (v >= low) & (v <= high)
+        window = classes[:, WHEEL_ROWS, WHEEL_COLUMNS]
+        window[wheel.any(axis=1)] = WHEEL
+        window[stripe.any(axis=1)] = WHEEL_STRIPE
+
+    def _draw_indicators(self, classes: np.ndarray, car: dict) -> None:
+        """Gymnasium's bar: black bottom eighth; vertical bars (speed, ABS) rise from h above the bottom
+        by h * value; horizontal bars (steering, gyroscope) extend from their place by s * value
+        (s = h = 96 / 40 pixels)."""
+        unit = STATE_SIZE / 40.0
+        bottom = STATE_SIZE
+        classes[:, int(bottom - 5 * unit) :, :] = BAR  # rows 84-95: centres inside [H - 5h, H]
+        vertical = [
+            (5, 0.02 * car["speed"], SPEED),
+            (7, 0.01 * car["wheel_omega"][:, 0], ABS_FRONT),
+            (8, 0.01 * car["wheel_omega"][:, 1], ABS_FRONT),
+            (9, 0.01 * car["wheel_omega"][:, 2], ABS_REAR),
+            (10, 0.01 * car["wheel_omega"][:, 3], ABS_REAR),
+        ]
+        centres = self.bar_centres
+        for place, value, cls in vertical:
+            cols = (centres >= place * unit) & (centres <= (place + 1) * unit)
+            base, tip = bottom - unit, bottom - unit - unit * value
+            lit = (centres[None, :] >= np.minimum(base, tip)[:, None]) & (centres[None, :] <= np.maximum(base, tip)[:, None])
+            block = classes[:, :, cols]
+            block[lit] = cls
+            classes[:, :, cols] = block
+        band = (centres >= bottom - 4 * unit) & (centres <= bottom - 2 * unit)
+        horizontal = [(20, -10.0 * car["steering"], STEERING), (30, -0.8 * car["angular_velocity"], GYROSCOPE)]
+        for place, value, cls in horizontal:
+            start, end = place * unit, (place + value) * unit
+            lit = (centres[None, :] >= np.minimum(start, end)[:, None]) & (centres[None, :] <= np.maximum(start, end)[:, None])
+            block = classes[:, band, :]
+            block[np.broadcast_to(lit[:, None, :], block.shape)] = cls
+            classes[:, band, :] = block
