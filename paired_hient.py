@@ -313,7 +313,8 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
             _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
             value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
             loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss

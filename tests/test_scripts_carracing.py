@@ -1,0 +1,103 @@
+"""Every script with `--env carracing`, run as a subprocess for a tiny run (CleanRL's way of testing a
+script), with the held-out evaluation on a track file of two Formula-1 tracks cut from the shared data;
+and the bad inputs of the track file: one error line, exit status 2, nothing written."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SHARED_TRACKS = os.path.join(ROOT, "..", "shared", "data", "f1_tracks.npz")
+TWO_TRACKS = ("Germany", "Italy")
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_F1_TRACKS": ""}
+TINY = ["--env", "carracing", "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
+        "--eval-episodes", "1", "--log-interval", "1"]
+SCRIPTS = {
+    "plr": ("plr.py", ["--level-buffer-size", "2", "--total-timesteps", "64"], "Robust PLR on carracing"),
+    "accel": ("accel.py", ["--level-buffer-size", "2", "--total-timesteps", "96"], "ACCEL on carracing"),
+    "paired": ("paired.py", ["--total-timesteps", "32"], "PAIRED on carracing"),
+    "paired_hient": ("paired_hient.py", ["--total-timesteps", "32"], "PAIRED+HiEnt on carracing"),
+    "paired_bc": ("paired_bc.py", ["--bidirectional", "--kl-interval", "1", "--total-timesteps", "32"], "PAIRED+BiBC on carracing"),
+    "paired_evo": ("paired_evo.py", ["--level-buffer-size", "2", "--total-timesteps", "96", "--kl-coef", "0.1",
+                                     "--kl-interval", "1"], "PAIRED+Evo+UniBC on carracing"),
+}
+
+
+def run(script, args, cwd):
+    return subprocess.run([sys.executable, os.path.join(ROOT, script), *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=600, env=ENV)
+
+
+@pytest.fixture(scope="module")
+def track_file(tmp_path_factory):
+    """Two F1 tracks of the shared file, with their frame limits, in the format users supply."""
+    folder = tmp_path_factory.mktemp("tracks")
+    with np.load(SHARED_TRACKS) as data:
+        np.savez(folder / "two.npz", **{name: data[name] for name in TWO_TRACKS})
+    with open(os.path.join(ROOT, "..", "shared", "data", "f1_tracks_meta.json")) as f:
+        meta = json.load(f)
+    with open(folder / "two_meta.json", "w") as f:
+        json.dump({name: meta[name] for name in TWO_TRACKS}, f)
+    return str(folder / "two.npz")
+
+
+@pytest.mark.parametrize("name", list(SCRIPTS))
+def test_script_runs_on_carracing_and_evaluates_on_f1_tracks(name, track_file, tmp_path):
+    script, flags, banner = SCRIPTS[name]
+    result = run(script, [*TINY, *flags, "--f1-tracks", track_file], tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert banner in result.stdout
+    assert "steps/s" in result.stdout
+    (run_dir,) = [os.path.join(tmp_path, "runs", d) for d in os.listdir(tmp_path / "runs")]
+    with open(os.path.join(run_dir, "eval.json")) as f:
+        results = json.load(f)
+    assert set(results) == {"vanilla", *TWO_TRACKS, "mean"}
+    for track in ("vanilla", *TWO_TRACKS):  # 1 episode per track: a return of the env's own reward scale
+        assert -300 < results[track]["mean_return"] < 1000
+    with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert rows and all(float(r["track_length"]) > 0 for r in rows)
+    assert {"track_length", "total_curvature", "sharp_turns"} <= set(rows[0])
+    assert os.path.isfile(os.path.join(run_dir, "curves.png")) and os.path.isfile(os.path.join(run_dir, "checkpoint.pt"))
+
+
+def test_paired_teacher_return_is_normalized_on_carracing(tmp_path):
+    """CarRacing normalizes the teacher's return by a running std (SPEC 4): its moments are saved."""
+    import torch
+
+    result = run("paired.py", [*TINY, "--total-timesteps", "32"], tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    (run_dir,) = [os.path.join(tmp_path, "runs", d) for d in os.listdir(tmp_path / "runs")]
+    checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
+    assert {"protagonist_normalizer", "antagonist_normalizer", "teacher_normalizer"} <= set(checkpoint)
+    assert checkpoint["teacher_normalizer"]["count"] > 1  # it has seen the regrets of 2 levels
+
+
+@pytest.mark.parametrize("script", ["plr.py", "paired_bc.py"])
+def test_missing_track_file_is_one_error_line(script, tmp_path):
+    result = run(script, [*TINY, "--f1-tracks", str(tmp_path / "nowhere.npz")], tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and result.stderr.startswith("error:")
+    assert "nowhere.npz" in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_malformed_track_file_is_one_error_line(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_text("not a zip file")
+    result = run("accel.py", [*TINY, "--f1-tracks", str(bad)], tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and "bad.npz" in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_track_file_only_for_carracing(tmp_path):
+    result = run("plr.py", ["--env", "maze", "--f1-tracks", SHARED_TRACKS], tmp_path)
+    assert result.returncode == 2 and "carracing only" in result.stderr
