@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+import torch
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED_TRACKS = os.path.join(ROOT, "..", "shared", "data", "f1_tracks.npz")
@@ -65,19 +66,10 @@ def test_script_runs_on_carracing_and_evaluates_on_f1_tracks(name, track_file, t
         rows = list(csv.DictReader(f))
     assert rows and all(float(r["track_length"]) > 0 for r in rows)
     assert {"track_length", "total_curvature", "sharp_turns"} <= set(rows[0])
-    assert os.path.isfile(os.path.join(run_dir, "curves.png")) and os.path.isfile(os.path.join(run_dir, "checkpoint.pt"))
-
-
-def test_paired_teacher_return_is_normalized_on_carracing(tmp_path):
-    """CarRacing normalizes the teacher's return by a running std (SPEC 4): its moments are saved."""
-    import torch
-
-    result = run("paired.py", [*TINY, "--total-timesteps", "32"], tmp_path)
-    assert result.returncode == 0, result.stderr[-3000:]
-    (run_dir,) = [os.path.join(tmp_path, "runs", d) for d in os.listdir(tmp_path / "runs")]
+    assert os.path.isfile(os.path.join(run_dir, "curves.png"))
     checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
-    assert {"protagonist_normalizer", "antagonist_normalizer", "teacher_normalizer"} <= set(checkpoint)
-    assert checkpoint["teacher_normalizer"]["count"] > 1  # it has seen the regrets of 2 levels
+    if name.startswith("paired") and name != "paired_evo":  # CarRacing normalizes the teacher's return (SPEC 4)
+        assert checkpoint["teacher_normalizer"]["count"] > 1  # its running moments have seen the regrets
 
 
 @pytest.mark.parametrize("script", ["plr.py", "paired_bc.py"])
