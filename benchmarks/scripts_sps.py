@@ -1,13 +1,16 @@
-"""End-to-end steps/s of every algorithm script at the paper's maze settings (32 envs x 256 steps, 5 epochs).
+"""End-to-end steps/s of the algorithm scripts at the paper's settings for an env (maze: 32 envs x 256
+steps, 5 epochs; carracing: 16 x 125, 8 epochs; walker: 16 x 2000, 5 epochs).
 
 Each script runs as a user would run it, in a temporary directory, for a few updates; the rate is read
 from its metrics.csv over the updates after the first (steps and time both cumulative there, evaluation
-excluded). Only the level buffer is shrunk (to 64 levels) so that replay updates start after two updates
-instead of ~60; a buffer's size does not change the cost of an update. For PAIRED the shares of the
-update spent in the teacher's rollout, the students' rollouts, their PPO updates and the teacher's update
-are printed too.
+excluded). Only the level buffer is shrunk (to 64 levels, 32 for the 16-copy envs) so that replay
+updates start after two updates instead of hundreds; a buffer's size does not change the cost of an
+update. For PAIRED the shares of the update spent in the teacher's rollout, the students' rollouts (env
+and inference), their PPO updates and the teacher's update are printed too.
 
-    python benchmarks/scripts_sps.py [--updates 8] [--only accel.py ...]
+    python benchmarks/scripts_sps.py [--env maze] [--updates 8] [--only accel.py ...]
+    python benchmarks/scripts_sps.py --env carracing --updates 3 --only paired_bc.py
+    python benchmarks/scripts_sps.py --env walker --updates 3 --only accel.py
 """
 
 import argparse
@@ -21,7 +24,9 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 QUIET = ["--eval-interval", "100000", "--eval-episodes", "1", "--levels-interval", "100000", "--checkpoint-interval", "100000"]
 BUFFER = ["--level-buffer-size", "64"]
-CASES = [
+SMALL_BUFFER = ["--level-buffer-size", "32"]
+BATCH = {"maze": 32 * 256, "carracing": 16 * 125, "walker": 16 * 2000}
+MAZE_CASES = [
     ("plr.py (Robust PLR)", "plr.py", BUFFER, "env steps"),
     ("plr.py --replay-prob 0 (DR)", "plr.py", ["--replay-prob", "0"], "env steps"),
     ("accel.py", "accel.py", BUFFER, "env steps, incl. edit evaluation"),
@@ -30,20 +35,28 @@ CASES = [
     ("paired_bc.py --bidirectional", "paired_bc.py", ["--bidirectional"], "protagonist steps"),
     ("paired_evo.py", "paired_evo.py", BUFFER, "student steps, both students"),
 ]
+CONTINUOUS_CASES = [
+    ("plr.py (Robust PLR)", "plr.py", SMALL_BUFFER, "env steps"),
+    ("accel.py", "accel.py", SMALL_BUFFER, "env steps, incl. edit evaluation"),
+    ("paired.py", "paired.py", [], "protagonist steps"),
+    ("paired_bc.py --bidirectional", "paired_bc.py", ["--bidirectional"], "protagonist steps"),
+    ("paired_evo.py", "paired_evo.py", SMALL_BUFFER, "student steps, both students"),
+]
 
 parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+parser.add_argument("--env", default="maze", choices=sorted(BATCH), help="the env, at its paper settings")
 parser.add_argument("--updates", type=int, default=8, help="updates per script (the first is not timed)")
 parser.add_argument("--only", nargs="*", default=None, help="script names to run (default: all)")
 options = parser.parse_args()
 
-print(f"{'script':40s} {'steps/s':>9s}  counting")
-for label, script, extra, counting in CASES:
+print(f"{'script (' + options.env + ')':40s} {'steps/s':>9s}  counting")
+for label, script, extra, counting in MAZE_CASES if options.env == "maze" else CONTINUOUS_CASES:
     if options.only and script not in options.only:
         continue
     with tempfile.TemporaryDirectory() as tmp:
         # PAIRED's budget counts protagonist steps; the others count every step they simulate.
-        steps = options.updates * 32 * 256
-        command = [sys.executable, os.path.join(ROOT, script), "--env", "maze", "--total-timesteps", str(steps), *QUIET, *extra]
+        steps = options.updates * BATCH[options.env]
+        command = [sys.executable, os.path.join(ROOT, script), "--env", options.env, "--total-timesteps", str(steps), *QUIET, *extra]
         result = subprocess.run(command, cwd=tmp, capture_output=True, text=True)
         if result.returncode != 0:
             print(f"{label:40s} failed: {result.stderr.strip().splitlines()[-1]}")
