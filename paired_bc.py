@@ -57,29 +57,29 @@ class Args:
 
     # PPO for all three agents (SPEC 4; None = the paper's value for --env)
     total_timesteps: Optional[int] = None
-    """protagonist env steps in all; the antagonist plays as many (paper: 250M)"""
+    """protagonist env steps in all; the antagonist plays as many (paper: maze 250M, carracing 5.5M)"""
     num_envs: Optional[int] = None
-    """levels the teacher designs per update, one per env copy (paper: 32)"""
+    """levels the teacher designs per update, one per env copy (paper: maze 32, carracing and walker 16)"""
     num_steps: Optional[int] = None
-    """student steps per copy per rollout; the LSTM trains on these whole sequences (paper: 256)"""
+    """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
     learning_rate: Optional[float] = None
-    """Adam learning rate of students and teacher (paper: 1e-4)"""
+    """Adam learning rate of students and teacher (paper: maze 1e-4, carracing and walker 3e-4)"""
     gamma: Optional[float] = None
-    """discount factor (paper: 0.995)"""
+    """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
     gae_lambda: Optional[float] = None
-    """GAE lambda (paper: 0.95)"""
+    """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
     num_minibatches: Optional[int] = None
-    """minibatches per epoch, split over env copies (paper: 1)"""
+    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
     update_epochs: Optional[int] = None
-    """PPO epochs per update (paper: 5)"""
+    """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
     student_ent_coef: Optional[float] = None
-    """entropy bonus of protagonist and antagonist (BC: 0.005)"""
+    """entropy bonus of protagonist and antagonist (BC: 0.005, walker 0.001)"""
     teacher_ent_coef: Optional[float] = None
-    """entropy bonus of the teacher (BC: 0.005 for maze, 0.05 for maze25)"""
+    """entropy bonus of the teacher (BC: 0.005 for maze, 0.05 for maze25 and carracing, 0.01 for walker)"""
     kl_coef: Optional[float] = None
-    """coefficient of the behavioural-cloning KL term, eq. 1 (BC: 0.01 for maze, 0.1 for maze25)"""
+    """coefficient of the behavioural-cloning KL term, eq. 1 (BC: 0.01 for maze, 0.1 for maze25 and walker, 0.5 for carracing)"""
     kl_interval: Optional[int] = None
-    """the KL term is added on every K-th update only (BC: 5 for maze, 25 for maze25)"""
+    """the KL term is added on every K-th update only (BC: 5 for maze, 25 for maze25, 10 for carracing and walker)"""
     bidirectional: bool = False
     """BiBC: the antagonist also clones the protagonist (default: UniBC, protagonist only)"""
     teacher_conv_channels: Optional[int] = None

@@ -59,19 +59,19 @@ class Args:
     total_timesteps: Optional[int] = None
     """protagonist env steps in all, training, scoring and edit evaluation; the antagonist plays as many"""
     num_envs: Optional[int] = None
-    """levels per update, one per env copy (paper: 32)"""
+    """levels per update, one per env copy (paper: maze 32, carracing and walker 16)"""
     num_steps: Optional[int] = None
-    """student steps per copy per rollout; the LSTM trains on these whole sequences (paper: 256)"""
+    """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
     learning_rate: Optional[float] = None
-    """Adam learning rate of the students (paper: 1e-4)"""
+    """Adam learning rate of the students (paper: maze 1e-4, carracing and walker 3e-4)"""
     gamma: Optional[float] = None
-    """discount factor (paper: 0.995)"""
+    """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
     gae_lambda: Optional[float] = None
-    """GAE lambda (paper: 0.95)"""
+    """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
     num_minibatches: Optional[int] = None
-    """minibatches per epoch, split over env copies (paper: 1)"""
+    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
     update_epochs: Optional[int] = None
-    """PPO epochs per update (paper: 5)"""
+    """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
     student_ent_coef: Optional[float] = None
     """entropy bonus of protagonist and antagonist (0; HiEnt: 0.005)"""
     kl_coef: Optional[float] = None
@@ -99,9 +99,9 @@ class Args:
     replay_prob: Optional[float] = None
     """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible on the maze)"""
     level_buffer_size: Optional[int] = None
-    """levels kept in the buffer (paper: 4000)"""
+    """levels kept in the buffer (paper: maze 4000, walker 1000; carracing 10000)"""
     temperature: Optional[float] = None
-    """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3)"""
+    """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
     staleness_coef: Optional[float] = None
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
