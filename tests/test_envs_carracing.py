@@ -25,7 +25,9 @@ from envs.carracing_tracks import (
     vanilla_track,
 )
 
-F1_FILE = "/work/shared/data/f1_tracks.npz"
+from conftest import shared_f1_track_file
+
+F1_FILE = shared_f1_track_file()
 CELLS = np.array([2, 5, 8, 29, 59, 89, 97, 94, 91, 70, 40, 10])  # a ring around the sketch's border
 
 

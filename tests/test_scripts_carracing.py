@@ -13,9 +13,10 @@ import sys
 import numpy as np
 import pytest
 import torch
+from conftest import shared_f1_track_file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED_TRACKS = os.path.join(ROOT, "..", "shared", "data", "f1_tracks.npz")
+SHARED_TRACKS = shared_f1_track_file()
 TWO_TRACKS = ("Germany", "Italy")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_F1_TRACKS": ""}
 TINY = ["--env", "carracing", "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
@@ -42,7 +43,7 @@ def track_file(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tracks")
     with np.load(SHARED_TRACKS) as data:
         np.savez(folder / "two.npz", **{name: data[name] for name in TWO_TRACKS})
-    with open(os.path.join(ROOT, "..", "shared", "data", "f1_tracks_meta.json")) as f:
+    with open(os.path.splitext(SHARED_TRACKS)[0] + "_meta.json") as f:
         meta = json.load(f)
     with open(folder / "two_meta.json", "w") as f:
         json.dump({name: meta[name] for name in TWO_TRACKS}, f)
