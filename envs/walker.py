@@ -14,6 +14,7 @@ BipedalWalker step is a fraction of a millisecond: one process per copy would lo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import multiprocessing
 import os
@@ -341,11 +342,9 @@ def _worker_loop(conn, count: int, cpu: int | None, inherited) -> None:
 def _stop_workers(processes, conns) -> None:
     """Ask the workers to finish, then make sure they did (a weakref finalizer: runs once)."""
     for conn in conns:
-        try:
+        with contextlib.suppress(OSError, ValueError):  # a worker that already ended has closed its pipe
             conn.send(("close", ()))
             conn.close()
-        except (OSError, ValueError):
-            pass
     for process in processes:
         process.join(timeout=2)
         if process.is_alive():
