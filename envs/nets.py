@@ -26,6 +26,72 @@ def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) 
 BUCKET_LENGTH_FACTOR = 0.75
 
 
+class MaskedLSTMRecurrence(torch.autograd.Function):
+    """The recurrence of an LSTM over a whole rollout, with the state zeroed where `keep` is 0, and its
+    hand-written backward pass (backpropagation through time).
+
+    Inputs: `projected` [T, N, 4H], the input projection W_ih x + b_ih + b_hh of every step (one large
+    matmul outside); `weight_hh` [4H, H]; the initial state h0, c0 [N, H]; `keep` [T, N, 1], 0 where an
+    episode starts at step t. Output: h [T, N, H]. Gates in PyTorch's order i, f, g, o.
+
+    Autograd over a Python loop of LSTM steps is slow on CPU: the backward of each step's slice of
+    `projected` allocates and adds a gradient the size of all of it. Here the forward keeps the activated gates, the backward runs only the small
+    sequential part step by step (one [N, 4H] x [4H, H] matmul and a few elementwise ops) and forms the
+    weight gradient in one [H, T * N] x [T * N, 4H] matmul. Its cost does not depend on where the
+    episodes end. tests/test_nets.py checks it against stepping nn.LSTM's cell and with gradcheck.
+    """
+
+    @staticmethod
+    def forward(ctx, projected, weight_hh, h0, c0, keep):
+        steps, n, four_h = projected.shape
+        hidden = four_h // 4
+        gates = torch.empty_like(projected)
+        c_all = projected.new_empty(steps, n, hidden)
+        h_all = projected.new_empty(steps, n, hidden)
+        h_in = projected.new_empty(steps, n, hidden)  # the state entering step t, after any reset
+        c_in = projected.new_empty(steps, n, hidden)
+        weight_t = weight_hh.t().contiguous()  # [H, 4H]: the faster layout for h @ W_hh^T
+        h, c = h0, c0
+        for t in range(steps):
+            torch.mul(h, keep[t], out=h_in[t])
+            torch.mul(c, keep[t], out=c_in[t])
+            g = torch.addmm(projected[t], h_in[t], weight_t, out=gates[t])
+            g[:, : 2 * hidden].sigmoid_()  # i, f
+            g[:, 2 * hidden : 3 * hidden].tanh_()  # g
+            g[:, 3 * hidden :].sigmoid_()  # o
+            c = torch.addcmul(g[:, hidden : 2 * hidden] * c_in[t], g[:, :hidden], g[:, 2 * hidden : 3 * hidden], out=c_all[t])
+            h = torch.mul(g[:, 3 * hidden :], torch.tanh(c), out=h_all[t])
+        ctx.save_for_backward(weight_hh, gates, c_all, h_in, c_in, keep)
+        return h_all
+
+    @staticmethod
+    def backward(ctx, grad_h):
+        weight_hh, gates, c_all, h_in, c_in, keep = ctx.saved_tensors
+        steps, n, four_h = gates.shape
+        hidden = four_h // 4
+        i, f, g, o = gates.view(steps, n, 4, hidden).unbind(2)
+        tanh_c = torch.tanh(c_all)
+        # Everything that does not depend on the incoming gradient, for all steps at once:
+        # dc_t += dh_t * dc_from_dh; d(i, f, g pre-activations) = dc_t * ifg_factors; d(o) = dh_t * o_factor.
+        dc_from_dh = o * (1 - tanh_c * tanh_c)
+        ifg_factors = torch.stack([g * i * (1 - i), c_in * f * (1 - f), i * (1 - g * g)], 2)
+        o_factor = tanh_c * o * (1 - o)
+        dc_carry = f * keep
+        grad_gates = torch.empty_like(gates)
+        grad_gates_split = grad_gates.view(steps, n, 4, hidden)
+        dh_carry = gates.new_zeros(n, hidden)
+        dc = gates.new_zeros(n, hidden)
+        for t in reversed(range(steps)):
+            dh = grad_h[t] + dh_carry
+            dc = torch.addcmul(dc, dh, dc_from_dh[t])
+            torch.mul(dc.unsqueeze(1), ifg_factors[t], out=grad_gates_split[t, :, :3])
+            torch.mul(dh, o_factor[t], out=grad_gates_split[t, :, 3])
+            dh_carry = torch.mm(grad_gates[t], weight_hh).mul_(keep[t])
+            dc = dc * dc_carry[t]
+        grad_weight_hh = grad_gates.view(steps * n, four_h).t() @ h_in.view(steps * n, hidden)
+        return grad_gates, grad_weight_hh, dh_carry, dc, None
+
+
 class ResettableLSTM(nn.Module):
     """An LSTM whose state is zeroed before every step marked `done` (the first step of an episode).
 
@@ -35,9 +101,10 @@ class ResettableLSTM(nn.Module):
     segment of each copy, which starts from `state`; segments of similar length are padded into one
     batch and run by one fused `nn.LSTM` call, and the valid steps are gathered back. This computes the
     same outputs as stepping T times (tests/test_nets.py checks it) several times faster on CPU. With
-    `project_inputs_first`, the T > 1 path instead projects all inputs in one matmul and loops over the
-    steps for the recurrence only: faster when the input is far wider than the state. The state after a
-    training sequence is never needed, so both paths return None for it.
+    `project_inputs_first`, the T > 1 path instead projects all inputs in one matmul and runs the
+    recurrence with `MaskedLSTMRecurrence`: faster when the input is far wider than the state (the maze
+    teacher); for the student's narrow input both cost the same within 10%. The state after a training
+    sequence is never needed, so both paths return None for it.
     """
 
     def __init__(self, input_size: int, hidden_size: int, project_inputs_first: bool = False):
@@ -64,25 +131,12 @@ class ResettableLSTM(nn.Module):
             h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
         if self.project_inputs_first:
-            return self._run_projected(x, state, done.view(steps, num_copies, 1)), None
+            lstm = self.lstm
+            projected = nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0).view(steps, num_copies, -1)
+            keep = (1.0 - done.float()).view(steps, num_copies, 1)
+            h = MaskedLSTMRecurrence.apply(projected, lstm.weight_hh_l0, state[0][0], state[1][0], keep)
+            return h.view(steps * num_copies, self.hidden_size), None
         return self._run_segments(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
-
-    def _run_projected(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
-        """For very wide inputs (the maze teacher's 21692): the input projection of all steps as one
-        large matmul, then the small recurrence step by step (PyTorch's gate order i, f, g, o)."""
-        lstm = self.lstm
-        steps, num_copies, _ = done.shape
-        projected = nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0).view(steps, num_copies, -1)
-        keep = 1.0 - done.float()
-        h, c = state[0][0], state[1][0]
-        outputs = []
-        for t in range(steps):
-            h, c = h * keep[t], c * keep[t]
-            i, f, g, o = torch.addmm(projected[t], h, lstm.weight_hh_l0.t()).chunk(4, 1)
-            c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
-            h = torch.sigmoid(o) * torch.tanh(c)
-            outputs.append(h)
-        return torch.stack(outputs).view(steps * num_copies, self.hidden_size)
 
     def _run_segments(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
         steps, num_copies = done.shape

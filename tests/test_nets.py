@@ -2,7 +2,7 @@
 
 import torch
 
-from envs.nets import ResettableLSTM
+from envs.nets import MaskedLSTMRecurrence, ResettableLSTM
 
 
 def step_by_step(lstm, x, state, done, num_copies):
@@ -58,16 +58,31 @@ def test_reset_zeroes_state():
     assert not torch.allclose(out_reset, out_carry)
 
 
-def test_projected_path_equals_step_loop_with_resets():
+def test_sequence_path_gradients_reach_the_initial_state_and_inputs():
     torch.manual_seed(3)
     lstm = ResettableLSTM(9, 12, project_inputs_first=True)
     steps, copies = 15, 3
     x = torch.randn(steps * copies, 9, requires_grad=True)
     done = (torch.rand(steps * copies) < 0.2).float()
-    state = (torch.randn(1, copies, 12), torch.randn(1, copies, 12))
+    done[:copies] = torch.tensor([0.0, 1.0, 0.0])  # copy 1's initial state is reset away: no gradient
+    state = (torch.randn(1, copies, 12, requires_grad=True), torch.randn(1, copies, 12, requires_grad=True))
     fast, _ = lstm(x, state, done)
     slow, _ = step_by_step(lstm, x, state, done, copies)
-    assert torch.allclose(fast, slow, atol=1e-5)
-    (grad_fast,) = torch.autograd.grad(fast.sum(), x)
-    (grad_slow,) = torch.autograd.grad(slow.sum(), x)
-    assert torch.allclose(grad_fast, grad_slow, atol=1e-5)
+    weights = torch.randn_like(fast)
+    grads_fast = torch.autograd.grad((fast * weights).sum(), (x, *state))
+    grads_slow = torch.autograd.grad((slow * weights).sum(), (x, *state))
+    for a, b in zip(grads_fast, grads_slow):
+        assert torch.allclose(a, b, atol=1e-5)
+    assert grads_fast[1][0, 1].abs().max() == 0 and grads_fast[1][0, 0].abs().max() > 0
+
+
+def test_masked_recurrence_passes_gradcheck():
+    torch.manual_seed(4)
+    steps, copies, hidden = 6, 2, 3
+    projected = torch.randn(steps, copies, 4 * hidden, dtype=torch.float64, requires_grad=True)
+    weight_hh = torch.randn(4 * hidden, hidden, dtype=torch.float64, requires_grad=True)
+    h0 = torch.randn(copies, hidden, dtype=torch.float64, requires_grad=True)
+    c0 = torch.randn(copies, hidden, dtype=torch.float64, requires_grad=True)
+    keep = torch.ones(steps, copies, 1, dtype=torch.float64)
+    keep[2, 0] = keep[4, 1] = 0.0
+    assert torch.autograd.gradcheck(MaskedLSTMRecurrence.apply, (projected, weight_hh, h0, c0, keep))
