@@ -1,17 +1,19 @@
 """Steps per second of the walker env (envs/walker.py, 16 copies) against one gymnasium BipedalWalker-v3.
 
-    python benchmarks/walker_env.py [--seconds 10] [--rounds 10] [--copies 16] [--workers 2] [--levels v3|random]
+    python benchmarks/walker_env.py [--seconds 10] [--rounds 10] [--copies 16] [--workers 1] [--levels v3|random]
 
 They run in the same run, in alternating rounds (so all see the same load from whatever else runs
 on the machine), with uniform random actions in [-1, 1]^4 made before timing. The walker env runs
-twice: all copies in this process, and split over worker processes (--workers, default min(2, CPU
-count)); a step of N copies counts as N env steps, ended episodes restart inside the env. gymnasium's
+twice: all copies in this process, and with --workers worker processes (default: the env's default,
+$CLEANUED_WALKER_WORKERS or none), which step shares of the copies beside this process; a step of N
+copies counts as N env steps, ended episodes restart inside the env. gymnasium's
 walker (BipedalWalker-v3, hardcore off) is stepped in a plain loop, reset after every ended episode and
 at 1600 steps (its TimeLimit). The walker env plays the held-out "BipedalWalker-v3" course (gymnasium's
 own terrain generator; --levels random: the DR levels of training instead) with the same limit. Then,
-as a control, it measures what the machine gives that many free-running gymnasium loops at once over
-one (on a busy machine, far less than the number of processes: the ceiling of any split). The last
-line ends with the ratio walker env (workers) / gymnasium as a bare number.
+as a control when there are workers, it measures what the machine gives as many free-running gymnasium
+loops at once as processes step walkers (workers + 1) over one (on a busy machine, far less than the
+number of processes: the ceiling of any split). The last line ends with the ratio walker env (default
+or --workers) / gymnasium as a bare number.
 """
 
 from __future__ import annotations
@@ -116,7 +118,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="timed seconds per env, over all rounds")
     parser.add_argument("--copies", type=int, default=16, help="walker env copies")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default min(2, CPUs))")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: the env's default)")
     parser.add_argument("--levels", choices=("v3", "random"), default="v3", help="the walker env's levels")
     parser.add_argument("--rounds", type=int, default=10, help="alternating rounds the seconds are split into")
     parser.add_argument("--seed", type=int, default=0)
@@ -145,10 +147,10 @@ def main() -> None:
             copies, label = args.copies, name.replace("workers", f"{runner.env.num_workers} workers")
         print(f"{label:<36}{copies:>8}{totals[name][0]:>14,}{sps[name]:>12,.0f}")
     workers = runners[f"WalkerEnv {args.levels}, workers"].env.num_workers
-    if workers > 1:
-        capacity = machine_capacity(workers, min(args.seconds / 2, 4.0), args.seed)
-        print(f"machine capacity now: {workers} free-running gymnasium loops give {capacity:.2f}x one "
-              f"(the ceiling of the ratio below under the current load)")
+    if workers > 0:
+        capacity = machine_capacity(workers + 1, min(args.seconds / 2, 4.0), args.seed)
+        print(f"machine capacity now: {workers + 1} free-running gymnasium loops give {capacity:.2f}x one "
+              f"(the ceiling of the speed-up of the workers row over the in-process one under the current load)")
     ratio = sps[f"WalkerEnv {args.levels}, workers"] / sps["gymnasium BipedalWalker-v3 (loop)"]
     print(f"ratio WalkerEnv({args.copies}, {workers} workers)/gymnasium: {ratio:.2f}")
 

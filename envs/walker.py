@@ -8,14 +8,20 @@ are gymnasium's own BipedalWalker-v3 / BipedalWalkerHardcore-v3 generators, unch
 
 Everything random in an episode (terrain, clouds, the initial push of the hull) is drawn from the
 level's terrain seed (gymnasium's `reset(seed=...)`) and every episode starts in a fresh Box2D world,
-so a level replays identically at every restart, in any process. The copies are stepped in worker processes, each looping over its share of copies (a
-BipedalWalker step is a fraction of a millisecond: one process per copy would lose to messaging).
+so a level replays identically at every restart, in any process.
+
+Stepping is gymnasium's step with the same results, made cheaper (`WalkerGroup`): per copy only the
+motors and the Box2D world step run in Python; the lidar (`TerrainLidar`: Box2D's raycast arithmetic,
+vectorized), the observation and the reward are computed for all copies at once. The copies are stepped
+in this process by default; worker processes can step shares of them side by side (`WalkerEnv`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
+import mmap
 import multiprocessing
 import os
 import signal
@@ -139,12 +145,13 @@ def check_levels(levels: WalkerLevels) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# gymnasium's walker with a designed terrain (SPEC 3): only _generate_terrain is replaced.
+# gymnasium's walker with a designed terrain (SPEC 3): _generate_terrain is replaced, parts of step added.
 # ---------------------------------------------------------------------------------------------------
 class DesignedBipedalWalker(gym_walker.BipedalWalker):
     """gymnasium's BipedalWalker whose terrain comes from a level: `play(params, course, seed)` resets
     it onto that level. CUSTOM courses use POET's generator below (recording the obstacles it placed in
-    `features`); GYM_FLAT and GYM_HARDCORE call gymnasium's own generator."""
+    `features`); GYM_FLAT and GYM_HARDCORE call gymnasium's own generator. gymnasium's `step` works as
+    ever; `WalkerGroup` steps walkers with `advance` and `lidar_targets` instead (the same results)."""
 
     def __init__(self):
         super().__init__()
@@ -155,12 +162,51 @@ class DesignedBipedalWalker(gym_walker.BipedalWalker):
     def play(self, params: np.ndarray, course: int, seed: int) -> np.ndarray:
         """Reset onto the level (terrain, clouds and initial push all from `seed`) in a fresh Box2D
         world, as the reference does: a reused world remembers its past (the order of its bodies'
-        proxies), and the same actions then give a slightly different run; -> first obs."""
+        proxies), and the same actions then give a slightly different run; -> first obs. From then on
+        the contacts are watched by a `GroundContacts` (gymnasium's detector, quicker)."""
         self.params = np.asarray(params, dtype=np.float64)
         self.course = int(course)
         self._destroy()
         self.world = Box2D.b2World()
-        return self.reset(seed=int(seed))[0]
+        obs = self.reset(seed=int(seed))[0]
+        self.contact_detector = GroundContacts(self)
+        self.world.contactListener = self.contact_detector
+        return obs
+
+    def advance(self, action: list[float]) -> tuple:
+        """gymnasium's step up to its readings: the motors set from `action` (4 floats in [-1, 1]) as
+        gymnasium sets them (speed: the action's sign; torque: its size), one world step; -> 17 floats:
+        the hull's x, y, angle, angular velocity, x and y velocity; per leg its hip's angle and speed,
+        its knee's angle and speed and the lower leg's ground contact; game_over. The rest of the step
+        (lidar, observation, reward) is done for many walkers at once by `WalkerGroup.step`, which keeps
+        the reward's `prev_shaping` itself."""
+        for joint, speed, a in zip(self.joints, MOTOR_SPEEDS, action):
+            joint.motorSpeed = speed * ((a > 0) - (a < 0))
+            joint.maxMotorTorque = gym_walker.MOTORS_TORQUE * min(abs(a), 1.0)
+        self.world.Step(1.0 / gym_walker.FPS, 6 * 30, 2 * 30)
+        hull, legs, (hip_a, knee_a, hip_b, knee_b) = self.hull, self.legs, self.joints
+        position, velocity = hull.position, hull.linearVelocity
+        return (
+            position.x, position.y, hull.angle, hull.angularVelocity, velocity.x, velocity.y,
+            hip_a.angle, hip_a.speed, knee_a.angle, knee_a.speed, legs[1].ground_contact,
+            hip_b.angle, hip_b.speed, knee_b.angle, knee_b.speed, legs[3].ground_contact,
+            self.game_over,
+        )
+
+    def lidar_targets(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """What gymnasium's lidar can hit (fixtures of category 1: the terrain) as Box2D holds it, in
+        float32: the ground edges [E, 2, 2] (their two vertices) and, per obstacle polygon, its vertices
+        and outward normals [2, m, 2] (Box2D's order)."""
+        edges, polygons = [], []
+        for body in self.terrain:
+            for fixture in body.fixtures:
+                if fixture.filterData.categoryBits & 1:
+                    shape = fixture.shape
+                    if isinstance(shape, Box2D.b2EdgeShape):
+                        edges.append(shape.vertices)
+                    else:
+                        polygons.append(np.array([shape.vertices, shape.normals], dtype=np.float32))
+        return np.array(edges, dtype=np.float32).reshape(-1, 2, 2), polygons
 
     def _generate_terrain(self, hardcore):
         self.features = []
@@ -277,52 +323,287 @@ class DesignedBipedalWalker(gym_walker.BipedalWalker):
 
 
 # ---------------------------------------------------------------------------------------------------
-# Stepping: a group of walkers in one process; worker processes each run one group.
+# Stepping: a group of walkers in one process, gymnasium's step done for all of them at once.
 # ---------------------------------------------------------------------------------------------------
+MOTOR_SPEEDS = (float(gym_walker.SPEED_HIP), float(gym_walker.SPEED_KNEE)) * 2  # the joints: hip, knee, hip, knee
+LIDAR_RAYS = 10
+# gymnasium's ray i leaves the hull 1.5 * i / 10 radians from straight down and is LIDAR_RANGE long; its
+# end is the hull's position plus these offsets, computed in double precision as gymnasium does.
+LIDAR_REACH_X = np.array([math.sin(1.5 * i / 10.0) * gym_walker.LIDAR_RANGE for i in range(LIDAR_RAYS)])
+LIDAR_REACH_Y = np.array([-math.cos(1.5 * i / 10.0) * gym_walker.LIDAR_RANGE for i in range(LIDAR_RAYS)])
+HULL_TAG = "hull"  # the hull's fixture userData for GroundContacts; the lower legs' is their index in legs
+
+
+class GroundContacts(Box2D.b2.contactListener):
+    """gymnasium's ContactDetector, quicker: the same flags, set at the same moments (walker.game_over
+    when a hull contact begins; leg.ground_contact of the lower legs legs[1] and legs[3], set when one
+    of their contacts begins and cleared when one ends). The parts are told apart by tags in their
+    fixtures' userData instead of comparing Box2D bodies, and PreSolve and PostSolve, which Box2D calls
+    for every touching contact at every step, do nothing in Python instead of calling back into C++."""
+
+    def __init__(self, walker: DesignedBipedalWalker):
+        super().__init__()
+        self.walker = walker
+        walker.hull.fixtures[0].userData = HULL_TAG
+        for index in (1, 3):
+            walker.legs[index].fixtures[0].userData = index
+
+    def BeginContact(self, contact):
+        for tag in (contact.fixtureA.userData, contact.fixtureB.userData):
+            if tag == HULL_TAG:
+                self.walker.game_over = True
+            elif tag is not None:
+                self.walker.legs[tag].ground_contact = True
+
+    def EndContact(self, contact):
+        for tag in (contact.fixtureA.userData, contact.fixtureB.userData):
+            if tag is not None and tag != HULL_TAG:
+                self.walker.legs[tag].ground_contact = False
+
+    def PreSolve(self, contact, old_manifold):
+        pass
+
+    def PostSolve(self, contact, impulse):
+        pass
+
+
+class TerrainLidar:
+    """gymnasium's lidar for a group of walkers at once. gymnasium casts each ray with Box2D's
+    world.RayCast and a callback that keeps the nearest hit among fixtures of category 1 (the terrain),
+    fraction 1 when there is none. Here each ray meets every terrain edge and obstacle polygon near it
+    with the arithmetic of Box2D's b2EdgeShape::RayCast and b2PolygonShape::RayCast (float32, the same
+    operations in the same order; the terrain is static, so its transform is the identity), vectorized
+    over walkers, rays and fixtures, and the nearest hit is kept: the same fractions, bit for bit.
+
+    `targets` holds each walker's `lidar_targets()`. The fixtures near a walker's rays are found by their
+    x extent: the fixtures of all walkers are sorted by (walker, left end), walker w's x coordinates
+    shifted by w * KEY_SPAN, so one searchsorted finds every walker's window. Windows are padded to the
+    widest with a last all-NaN fixture that no ray hits; extra candidates cost only time."""
+
+    KEY_SPAN = 1e4  # walker w's terrain lies in w * KEY_SPAN + [0, 100]; its searches stay within +-KEY_SPAN / 4
+    MARGIN = 0.01  # widens the rays' x extent, against rounding
+
+    def __init__(self, targets: list[tuple[np.ndarray, list[np.ndarray]]]):
+        edges = np.concatenate([edges for edges, _ in targets])
+        v1, v2 = edges[:, 0], edges[:, 1]
+        r = v2 - v1
+        # b2EdgeShape::RayCast's normal: (r.y, -r.x) normalized by b2Vec2::Normalize (unchanged if shorter
+        # than b2_epsilon)
+        normal = np.stack([r[:, 1], -r[:, 0]], axis=1)
+        length = np.sqrt(normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1])
+        long_enough = length >= np.finfo(np.float32).eps
+        normal[long_enough] *= (np.float32(1) / length[long_enough])[:, None]
+        rr = r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]
+        table = np.column_stack([v1, normal, r, rr])  # per edge: v1.x, v1.y, n.x, n.y, r.x, r.y, dot(r, r)
+        owner = np.repeat(np.arange(len(targets)), [len(e) for e, _ in targets])
+        self.edge_keys, order = self._keys(owner, np.minimum(v1[:, 0], v2[:, 0]), np.maximum(v1[:, 0], v2[:, 0]))
+        self.edges = self._with_sentinel(table[order]).T.copy()  # [7, edges + 1]
+
+        polygons = [polygon for _, walker_polygons in targets for polygon in walker_polygons]
+        width = max((polygon.shape[1] for polygon in polygons), default=1)
+        # per polygon and vertex slot: vertex x, y, normal x, y; unused slots zero, which changes no raycast
+        table = np.zeros((len(polygons), width, 4), dtype=np.float32)
+        for row, (vertices, normals) in zip(table, polygons):
+            row[: len(vertices)] = np.concatenate([vertices, normals], axis=1)
+        owner = np.repeat(np.arange(len(targets)), [len(p) for _, p in targets])
+        x = [vertices[:, 0] for vertices, _ in polygons]
+        self.polygon_keys, order = self._keys(owner, np.array([v.min() for v in x]), np.array([v.max() for v in x]))
+        self.polygons = self._with_sentinel(table[order]).transpose(2, 1, 0).copy()  # [4, m, polygons + 1]
+        self.shift = np.arange(len(targets)) * self.KEY_SPAN
+
+    @classmethod
+    def _keys(cls, owner: np.ndarray, low: np.ndarray, high: np.ndarray):
+        """Search keys of fixtures owned by walker `owner` spanning x in [low, high]: (sorted left ends,
+        the running maximum of right ends in that order), and that order."""
+        order = np.lexsort((low, owner))
+        shift = owner[order] * cls.KEY_SPAN
+        return (low[order] + shift, np.maximum.accumulate(high[order] + shift)), order
+
+    @staticmethod
+    def _with_sentinel(table: np.ndarray) -> np.ndarray:
+        """The table with an all-NaN last row: every comparison with it fails, so no ray hits it."""
+        return np.concatenate([table, np.full((1,) + table.shape[1:], np.nan, dtype=np.float32)])
+
+    def _near(self, keys, low: np.ndarray, high: np.ndarray) -> np.ndarray | None:
+        """Rows [W, k] of the fixtures whose x extent may meet [low, high] of each walker (the sentinel
+        row where a walker has fewer than W); None when no walker has any."""
+        left_ends, reach = keys
+        first = np.searchsorted(reach, low + self.shift, "left")
+        count = np.searchsorted(left_ends, high + self.shift, "right") - first
+        width = count.max(initial=0)
+        if width <= 0:
+            return None
+        slots = np.arange(width)[:, None]
+        return np.where(slots < count, first + slots, len(left_ends))
+
+    def scan(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The 10 lidar fractions [k, 10] float32 of walkers whose hulls are at (x, y) [k] (float64
+        holding Box2D's float32 positions)."""
+        p1x, p1y = x.astype(np.float32), y.astype(np.float32)
+        dx = (x[:, None] + LIDAR_REACH_X).astype(np.float32) - p1x[:, None]
+        dy = (y[:, None] + LIDAR_REACH_Y).astype(np.float32) - p1y[:, None]
+        bound = self.KEY_SPAN / 4
+        low = np.minimum(np.maximum(x - self.MARGIN, -bound), bound)
+        high = np.minimum(np.maximum(x + (LIDAR_REACH_X.max() + self.MARGIN), -bound), bound)
+        fractions = np.ones((len(x), LIDAR_RAYS), dtype=np.float32)
+        ray = (p1x[:, None], p1y[:, None], dx, dy)  # [k, 1], [k, 10]: against fixtures [W, k, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rows = self._near(self.edge_keys, low, high)
+            if rows is not None:
+                np.minimum(fractions, self._edge_fractions(self.edges[:, rows, None], *ray), out=fractions)
+            rows = self._near(self.polygon_keys, low, high)
+            if rows is not None:
+                np.minimum(fractions, self._polygon_fractions(self.polygons[:, :, rows, None], *ray), out=fractions)
+        return fractions
+
+    @staticmethod
+    def _edge_fractions(edges, p1x, p1y, dx, dy) -> np.ndarray:
+        """b2EdgeShape::RayCast of rays [k, 10] against edges [7, W, k, 1] (the table's columns); -> the
+        nearest hit of each ray (1: none)."""
+        v1x, v1y, nx, ny, rx, ry, rr = edges
+        numerator = nx * (v1x - p1x) + ny * (v1y - p1y)
+        t = numerator / (nx * dx + ny * dy)
+        s = ((p1x + t * dx - v1x) * rx + (p1y + t * dy - v1y) * ry) / rr
+        # a zero denominator or dot(r, r) makes t or s infinite or NaN, which fails these tests as it
+        # fails Box2D's
+        hit = (t >= 0) & (t <= 1) & (s >= 0) & (s <= 1)
+        return np.minimum.reduce(np.where(hit, t, 1), axis=0)
+
+    @staticmethod
+    def _polygon_fractions(polygons, p1x, p1y, dx, dy) -> np.ndarray:
+        """b2PolygonShape::RayCast of rays [k, 10] against polygons [4, m, W, k, 1] (the table's columns);
+        -> the nearest hit of each ray (1: none). Box2D walks the polygon's sides keeping the interval
+        [lower, upper] of the ray inside it, and gives up once it is empty; the parts that do not depend
+        on that walk are computed for all sides at once. Box2D starts `upper` at the ray's current
+        maximum fraction (the nearest hit so far); starting it at 1 changes only hits farther than
+        that, which the minimum drops anyway."""
+        vx, vy, nx, ny = polygons
+        numerator = nx * (vx - p1x) + ny * (vy - p1y)
+        denominator = nx * dx + ny * dy  # [m, W, k, 10]
+        ratio = numerator / denominator
+        gone = np.logical_or.reduce((denominator == 0) & (numerator < 0), axis=0)  # parallel to a side, outside it
+        lower = np.zeros(gone.shape, dtype=np.float32)
+        upper = np.ones(gone.shape, dtype=np.float32)
+        entered = np.zeros(gone.shape, dtype=bool)
+        for side in range(len(numerator)):
+            num, den = numerator[side], denominator[side]
+            enters = (den < 0) & (num < lower * den)
+            leaves = (den > 0) & (num < upper * den)
+            lower = np.where(enters, ratio[side], lower)
+            upper = np.where(leaves, ratio[side], upper)
+            entered |= enters
+            gone |= upper < lower
+        return np.minimum.reduce(np.where(entered & ~gone, lower, 1), axis=0)
+
+
 class WalkerGroup:
-    """Some env copies stepped in a loop in this process. An ended episode (terminated, or truncated at
-    max_steps) restarts the copy's level at once; the returned observation is then the new episode's."""
+    """Some env copies stepped in this process. An ended episode (terminated, or truncated at max_steps)
+    restarts the copy's level at once; the returned observation is then the new episode's.
+
+    A step is gymnasium's BipedalWalker.step for every copy, with the same results: each copy's motors and
+    world step (`DesignedBipedalWalker.advance`), then for all copies at once the lidar (`TerrainLidar`),
+    the observation and the reward, in gymnasium's arithmetic (the reward's float32 steps included: the
+    actions are float32, as WalkerEnv passes them). A restart replays the copy's level in a fresh world
+    with the same terrain (it comes from the level), so the lidar's targets are only read at reset."""
 
     def __init__(self, count: int):
         self.walkers = [DesignedBipedalWalker() for _ in range(count)]
         self.steps = np.zeros(count, dtype=np.int64)
+        self.prev_shaping = np.zeros(count)
 
     def reset(self, params: np.ndarray, course: np.ndarray, seed: np.ndarray, max_steps: int) -> np.ndarray:
         """Put walker i on level (params[i], course[i], seed[i]); -> first observations [k, 24]."""
         self.params, self.course, self.seed, self.max_steps = params, course, seed, max_steps
         self.steps[:] = 0
-        return np.stack([w.play(params[i], course[i], seed[i]) for i, w in enumerate(self.walkers)]).astype(np.float32)
+        obs = np.stack([self._restart(i) for i in range(len(self.walkers))]).astype(np.float32)
+        self.lidar = TerrainLidar([walker.lidar_targets() for walker in self.walkers])
+        return obs
+
+    def _restart(self, i: int) -> np.ndarray:
+        """Start a new episode of copy i on its level; -> its first observation."""
+        walker = self.walkers[i]
+        obs = walker.play(self.params[i], self.course[i], self.seed[i])
+        self.prev_shaping[i] = walker.prev_shaping
+        self.steps[i] = 0
+        return obs
 
     def step(self, actions: np.ndarray):
         """-> obs [k, 24] float32, reward [k] float32, terminated, truncated [k] bool, hull [k, 2] (the hull
         position after the step, before any restart)."""
+        actions = np.asarray(actions, dtype=np.float32)
+        physics = np.array([walker.advance(action) for walker, action in zip(self.walkers, actions.tolist())])
+        x, y, angle, angular_velocity, vx, vy = physics[:, :6].T
+        # gymnasium's state: Python floats (double precision) in this order and arithmetic, then float32
+        fps, scale = gym_walker.FPS, gym_walker.SCALE
+        obs = np.empty((len(physics), OBS_DIM))
+        obs[:, 0] = angle
+        obs[:, 1] = 2.0 * angular_velocity / fps
+        obs[:, 2] = 0.3 * vx * (gym_walker.VIEWPORT_W / scale) / fps
+        obs[:, 3] = 0.3 * vy * (gym_walker.VIEWPORT_H / scale) / fps
+        legs, leg_obs = physics[:, 6:16].reshape(-1, 2, 5), obs[:, 4:14].reshape(-1, 2, 5)
+        leg_obs[..., 0] = legs[..., 0]
+        leg_obs[..., 1] = legs[..., 1] / gym_walker.SPEED_HIP
+        leg_obs[..., 2] = legs[..., 2] + 1.0
+        leg_obs[..., 3] = legs[..., 3] / gym_walker.SPEED_KNEE
+        leg_obs[..., 4] = legs[..., 4]
+        obs[:, 14:] = self.lidar.scan(x, y)
+        obs = obs.astype(np.float32)
+
+        # gymnasium's reward: the change of the shaping (double precision), minus a torque cost per joint;
+        # a Python float minus numpy's float32 |action| term is float32, so from there on it is float32
+        shaping = 130 * x / scale - 5.0 * np.abs(angle)
+        reward = (shaping - self.prev_shaping).astype(np.float32)
+        self.prev_shaping = shaping
+        torque_cost = np.float32(0.00035 * gym_walker.MOTORS_TORQUE) * np.minimum(np.abs(actions), 1)
+        for joint in range(ACTION_DIM):  # one at a time, in gymnasium's order
+            reward -= torque_cost[:, joint]
+        fallen = (physics[:, 16] > 0) | (x < 0)  # the hull touched the ground, or the walker left the course
+        reward[fallen] = -100
+        terminated = fallen | (x > (TERRAIN_LENGTH - TERRAIN_GRASS) * TERRAIN_STEP)  # reached the end
+
         self.steps += 1
-        truncated = self.steps >= self.max_steps
-        obs, reward, terminated, hull = [], [], [], []
-        for i, walker in enumerate(self.walkers):
-            state, r, ended, _, _ = walker.step(actions[i])
-            position = walker.hull.position
-            hull.append((position.x, position.y))
-            if ended or truncated[i]:
-                state = walker.play(self.params[i], self.course[i], self.seed[i])
-                self.steps[i] = 0
-            obs.append(state)
-            reward.append(r)
-            terminated.append(ended)
-        terminated = np.array(terminated, dtype=bool)
-        return np.array(obs, dtype=np.float32), np.array(reward, dtype=np.float32), terminated, truncated & ~terminated, np.array(hull, dtype=np.float32)
+        truncated = (self.steps >= self.max_steps) & ~terminated
+        for i in np.flatnonzero(terminated | truncated):
+            obs[i] = self._restart(i)
+        return obs, reward, terminated, truncated, physics[:, :2].astype(np.float32)
 
 
-def _worker_loop(conn, count: int, cpu: int | None, inherited) -> None:
-    """A worker process: runs one WalkerGroup (on CPU `cpu` if given), answering (method name, args)
-    messages until "close", a closed pipe, or the parent's death."""
+class StepArrays:
+    """The actions and results of a step for all copies, in memory shared with the worker processes
+    (an anonymous shared mapping, made before they are forked): each process reads the actions of its
+    share and writes its results there, so a step sends no arrays through the pipes."""
+
+    FIELDS = (
+        ("actions", np.float32, (ACTION_DIM,)),
+        ("obs", np.float32, (OBS_DIM,)),
+        ("reward", np.float32, ()),
+        ("terminated", np.bool_, ()),
+        ("truncated", np.bool_, ()),
+        ("hull", np.float32, (2,)),
+    )
+
+    def __init__(self, num_envs: int):
+        shapes = [(num_envs,) + shape for _, _, shape in self.FIELDS]
+        sizes = [int(np.prod(shape)) * np.dtype(dtype).itemsize for (_, dtype, _), shape in zip(self.FIELDS, shapes)]
+        self.buffer = mmap.mmap(-1, sum(sizes))
+        for (name, dtype, _), shape, offset in zip(self.FIELDS, shapes, np.cumsum([0] + sizes[:-1]).tolist()):
+            setattr(self, name, np.ndarray(shape, dtype, self.buffer, offset))
+
+    def store(self, rows: slice, results: tuple) -> None:
+        """Write a WalkerGroup.step's results for copies `rows`."""
+        for array, value in zip((self.obs, self.reward, self.terminated, self.truncated, self.hull), results):
+            array[rows] = value
+
+
+def _worker_loop(conn, rows: slice, arrays: StepArrays, inherited) -> None:
+    """A worker process: runs the WalkerGroup of copies `rows`, answering (method name, args) messages
+    until "close", a closed pipe, or the parent's death. "step" takes its actions from `arrays` and
+    stores its results there (the answer is None); other methods answer with their result."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
-    if cpu is not None:
-        os.sched_setaffinity(0, {cpu})
     for other in inherited:
         other.close()
     parent = os.getppid()
-    group = WalkerGroup(count)
+    group = WalkerGroup(rows.stop - rows.start)
     while True:
         while not conn.poll(1.0):
             if os.getppid() != parent:
@@ -334,7 +615,11 @@ def _worker_loop(conn, count: int, cpu: int | None, inherited) -> None:
         if command == "close":
             return
         try:
-            conn.send(getattr(group, command)(*args))
+            if command == "step":
+                arrays.store(rows, group.step(arrays.actions[rows]))
+                conn.send(None)
+            else:
+                conn.send(getattr(group, command)(*args))
         except Exception as error:  # handed to the parent, which raises it
             conn.send(error)
 
@@ -353,10 +638,10 @@ def _stop_workers(processes, conns) -> None:
 
 
 def default_num_workers() -> int:
-    """Worker processes of a WalkerEnv: $CLEANUED_WALKER_WORKERS if set, else min(2, CPU cores)."""
+    """Worker processes of a WalkerEnv: $CLEANUED_WALKER_WORKERS if set, else none (see WalkerEnv)."""
     value = os.environ.get("CLEANUED_WALKER_WORKERS", "")
     if not value:
-        return min(2, os.cpu_count() or 1)
+        return 0
     if not value.isdigit():
         raise ValueError(f"CLEANUED_WALKER_WORKERS must be a whole number >= 0, got {value!r}")
     return int(value)
@@ -483,14 +768,14 @@ class WalkerEnv:
     Either way the copy restarts its level at once (same terrain, same initial push). `info` holds
     "hull_position" [N, 2], the hull's (x, y) after the step (before any restart), for drawing runs.
 
-    The copies are split into `num_workers` equal shares, each stepped by a worker process (started at
-    the first reset); this process only hands out actions and gathers results. Default: min(2, CPU
-    cores) workers, or $CLEANUED_WALKER_WORKERS (scripts build the env through envs.make, which has no
-    such argument), none for a single copy; num_workers=0 steps every copy in this process. Every split
-    gives identical results. With one worker per available core (2 on 2 cores), worker k is pinned to
-    core k (measured a few to 15% faster than unpinned when the cores are free: the kernel tends to wake
-    a process on the core of the one that wrote to its pipe). When other jobs hold the cores, the
-    workers wait on each other at every step and num_workers=0 is faster (benchmarks/walker_env.py).
+    With num_workers > 0 the copies are split into num_workers + 1 nearly equal shares: this process
+    steps the first while each worker process (started at the first reset) steps another; a step sends
+    each worker a short message, and the actions and results pass through shared memory (`StepArrays`).
+    Default: $CLEANUED_WALKER_WORKERS (scripts build the env through envs.make, which has no such
+    argument), else none: every copy in this process. Every split gives identical results. On the
+    2-core machine of benchmarks/walker_env.py one worker made the env ~15% faster when nothing else
+    ran, but 15-25% slower beside another CPU-bound job (the two processes wait on each other at every
+    step, and the kernel tends to let the woken worker preempt the parent), hence the default.
     """
 
     def __init__(self, num_envs: int = 16, seed: int = 0, num_workers: int | None = None):
@@ -502,7 +787,7 @@ class WalkerEnv:
             num_workers = default_num_workers() if num_envs > 1 else 0
         if num_workers < 0:
             raise ValueError(f"num_workers must be >= 0, got {num_workers}")
-        self.num_workers = min(num_workers, num_envs)
+        self.num_workers = min(num_workers, num_envs - 1)
         self.single_observation_space = gym.spaces.Dict({"state": gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)})
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
         self.Levels = WalkerLevels
@@ -512,9 +797,13 @@ class WalkerEnv:
         self.validation_levels = ("BipedalWalker-v3", "Stairs", "PitGap")
         self.level_metric_names = LEVEL_METRIC_NAMES
         self.training = True  # no training-only reward shaping for the walker; kept for the interface
-        self.shares = np.array_split(np.arange(num_envs), max(self.num_workers, 1))
+        # equal shares but for rounding; this process steps the first, one of the smallest
+        sizes = [len(share) for share in np.array_split(np.arange(num_envs), self.num_workers + 1)][::-1]
+        bounds = np.cumsum([0] + sizes).tolist()
+        self.shares = [slice(start, stop) for start, stop in zip(bounds[:-1], bounds[1:])]
         self._conns: list = []
         self._local: WalkerGroup | None = None
+        self._arrays: StepArrays | None = None
         self._renderer: DesignedBipedalWalker | None = None
         self._finalizer = None
 
@@ -527,19 +816,17 @@ class WalkerEnv:
     # --- processes -----------------------------------------------------------------------------------
     def _start(self) -> None:
         """Make this process's group of walkers and start the worker processes, on first use."""
-        if self._local is not None or self._conns:
+        if self._local is not None:
             return
-        if self.num_workers == 0:
-            self._local = WalkerGroup(self.num_envs)
-            return
-        cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-        # fork: the worker starts at once and never touches torch (spawn would re-import it).
+        self._local = WalkerGroup(self.shares[0].stop - self.shares[0].start)
+        self._arrays = StepArrays(self.num_envs)
+        # fork: the worker starts at once, shares the step arrays and never touches torch (spawn would
+        # re-import it).
         context = multiprocessing.get_context("fork")
         processes, parent_ends = [], []
-        for k, share in enumerate(self.shares):
+        for rows in self.shares[1:]:
             parent_end, child_end = context.Pipe()
-            cpu = cpus[k] if len(cpus) == self.num_workers > 1 else None
-            process = context.Process(target=_worker_loop, args=(child_end, len(share), cpu, parent_ends + [parent_end]), daemon=True)
+            process = context.Process(target=_worker_loop, args=(child_end, rows, self._arrays, parent_ends + [parent_end]), daemon=True)
             process.start()
             child_end.close()
             processes.append(process)
@@ -547,14 +834,17 @@ class WalkerEnv:
         self._conns = parent_ends
         self._finalizer = weakref.finalize(self, _stop_workers, processes, parent_ends)
 
-    def _call(self, command: str, *per_share_args) -> list:
-        """Run a WalkerGroup method on every share (args already split per share); -> the results in
-        share order."""
-        if self._local is not None:
-            return [getattr(self._local, command)(*(a[0] for a in per_share_args))]
-        for conn, args in zip(self._conns, zip(*per_share_args)):
+    def _call(self, command: str, share_args: list[tuple]) -> list:
+        """Run a WalkerGroup method on every share with its args (share_args[k] for share k), this
+        process's share while the workers run theirs; -> the results in share order (None for the
+        workers' steps: theirs are in the step arrays). Raises the first error once every share is done."""
+        for conn, args in zip(self._conns, share_args[1:]):
             conn.send((command, args))
-        results = [conn.recv() for conn in self._conns]
+        try:
+            results = [getattr(self._local, command)(*share_args[0])]
+        except Exception as error:
+            results = [error]
+        results += [conn.recv() for conn in self._conns]
         for result in results:
             if isinstance(result, Exception):
                 raise result
@@ -579,17 +869,21 @@ class WalkerEnv:
             raise ValueError(f"max_steps must be positive, got {max_steps}")
         self._start()
         params = np.asarray(levels.params, dtype=np.float64)
-        split = [[x[s] for s in self.shares] for x in (params, np.asarray(levels.course), np.asarray(levels.seed))]
-        obs = self._call("reset", *split, [max_steps] * len(self.shares))
+        course, seed = np.asarray(levels.course), np.asarray(levels.seed)
+        obs = self._call("reset", [(params[rows], course[rows], seed[rows], max_steps) for rows in self.shares])
         return {"state": np.concatenate(obs)}
 
     def step(self, actions: np.ndarray):
         """Step every copy with actions [N, 4] (clipped to [-1, 1]); -> obs, reward, terminated,
         truncated, info (see the class docstring)."""
-        actions = np.clip(np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACTION_DIM), -1.0, 1.0)
-        results = self._call("step", [actions[s] for s in self.shares])
-        obs, reward, terminated, truncated, hull = (np.concatenate(parts) for parts in zip(*results))
-        return {"state": obs}, reward, terminated, truncated, {"hull_position": hull}
+        if self._local is None:
+            raise RuntimeError("WalkerEnv.step called before reset")
+        arrays = self._arrays
+        np.clip(np.asarray(actions, dtype=np.float32).reshape(self.num_envs, ACTION_DIM), -1.0, 1.0, out=arrays.actions)
+        mine = self.shares[0]
+        arrays.store(mine, self._call("step", [(arrays.actions[mine],)] + [()] * self.num_workers)[0])
+        return ({"state": arrays.obs.copy()}, arrays.reward.copy(), arrays.terminated.copy(), arrays.truncated.copy(),
+                {"hull_position": arrays.hull.copy()})
 
     # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------------
     def random_levels(self, n: int, rng: np.random.Generator) -> WalkerLevels:

@@ -6,10 +6,13 @@ height (low, high), stair height (low, high), stair steps.
 
 from __future__ import annotations
 
+import math
+import os
+
 import numpy as np
 import pytest
 import torch
-from gymnasium.envs.box2d.bipedal_walker import BipedalWalker
+from gymnasium.envs.box2d.bipedal_walker import LIDAR_RANGE, BipedalWalker, BipedalWalkerHeuristics
 
 import envs
 from envs.walker import (
@@ -25,7 +28,9 @@ from envs.walker import (
     TERRAIN_STEP,
     TRAIN_MAX_STEPS,
     DesignedBipedalWalker,
+    TerrainLidar,
     WalkerEnv,
+    WalkerGroup,
     WalkerLevels,
     WalkerStudent,
     WalkerTeacher,
@@ -173,6 +178,83 @@ def test_rewards_equal_gymnasium_for_the_same_motion():
     env.close()
 
 
+# Levels whose first obstacle comes right after the start pad (within the lidar's reach from the start):
+# stumps, pits, stairs, all of them on rough ground, gymnasium's hardcore and flat courses.
+OBSTACLE_LEVELS = [
+    ([0, 0, 0, 1, 1.5, 0, 0, 1], CUSTOM, 3),
+    ([0, 1.5, 2.5, 0, 0, 0, 0, 1], CUSTOM, 4),
+    ([0, 0, 0, 0, 0, 0.6, 1, 5], CUSTOM, 5),
+    ([2, 1, 2, 0.5, 1, 0.5, 1, 4], CUSTOM, 6),
+    (FLAT, GYM_HARDCORE, 7),
+    (FLAT, GYM_FLAT, 8),
+]
+
+
+def play_with_gymnasium_contacts(walker: DesignedBipedalWalker, params, course: int, seed: int) -> np.ndarray:
+    """walker.play, then gymnasium's own contact detector back in place of GroundContacts: with
+    gymnasium's step, the reference the fast path is checked against; -> the first observation."""
+    obs = walker.play(np.array(params, dtype=np.float64), course, seed)
+    walker.world.contactListener = walker.world.contactListener_bug_workaround
+    return obs
+
+
+def test_fast_step_equals_gymnasium_step():
+    """WalkerGroup's step (motors and world step per copy, lidar, observation and reward for all copies at
+    once) gives exactly what gymnasium's BipedalWalker.step gives for the same level and actions: the
+    walkers walk with gymnasium's heuristic plus noise into stumps, pits and stairs, fall (-100) and
+    restart, or are cut at the time limit."""
+    max_steps, n = 300, len(OBSTACLE_LEVELS)
+    params, course, seeds = (np.array(column) for column in zip(*OBSTACLE_LEVELS))
+    group = WalkerGroup(n)
+    obs = group.reset(params.astype(np.float64), course, seeds, max_steps)
+    references = [DesignedBipedalWalker() for _ in range(n)]
+    expected = [play_with_gymnasium_contacts(walker, *level) for walker, level in zip(references, OBSTACLE_LEVELS)]
+    assert np.array_equal(obs, np.array(expected))
+    pilots = [BipedalWalkerHeuristics() for _ in range(n)]
+    rng = np.random.default_rng(0)
+    steps, ends, furthest = np.zeros(n, int), np.zeros(n, int), np.zeros(n)
+    for _ in range(700):
+        heuristic = np.array([pilot.step_heuristic(o.copy()) for pilot, o in zip(pilots, obs)])
+        actions = np.clip(heuristic + rng.normal(0, 0.3, (n, 4)), -1, 1).astype(np.float32)
+        obs, reward, terminated, truncated, hull = group.step(actions)
+        steps += 1
+        for i, walker in enumerate(references):
+            expected_obs, expected_reward, expected_end, _, _ = walker.step(actions[i])
+            assert reward[i] == np.float32(expected_reward) and terminated[i] == expected_end
+            assert truncated[i] == (not expected_end and steps[i] == max_steps)
+            assert np.array_equal(hull[i], np.array(tuple(walker.hull.position), dtype=np.float32))
+            furthest[i] = max(furthest[i], hull[i, 0])
+            if terminated[i] or truncated[i]:
+                expected_obs = play_with_gymnasium_contacts(walker, *OBSTACLE_LEVELS[i])
+                pilots[i], steps[i] = BipedalWalkerHeuristics(), 0
+                ends[i] += 1
+            assert np.array_equal(obs[i], expected_obs)
+    assert np.all(ends >= 2) and np.all(furthest > 6)  # the lidar reaches the first obstacle (x > 9.3) from x > 4.1
+
+
+@pytest.mark.parametrize("params, course, seed", OBSTACLE_LEVELS)
+def test_lidar_equals_box2d_raycasts(params, course, seed):
+    """TerrainLidar's fractions equal gymnasium's lidar (Box2D's world.RayCast with gymnasium's callback)
+    bit for bit, from hulls all over the course: above, near and inside the ground and obstacles."""
+    walker = DesignedBipedalWalker()
+    walker.play(np.array(params, dtype=np.float64), course, seed)
+    lidar = TerrainLidar([walker.lidar_targets()])
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(-1, 95, 1500).astype(np.float32).astype(np.float64)
+    y = (np.interp(x, walker.terrain_x, walker.terrain_y) + rng.uniform(-1, 3, len(x))).astype(np.float32).astype(np.float64)
+    expected = np.ones((len(x), 10))
+    for k in range(len(x)):
+        for i, ray in enumerate(walker.lidar):  # gymnasium's step, from a hull at (x, y)
+            ray.fraction = 1.0
+            ray.p1 = (x[k], y[k])
+            ray.p2 = (x[k] + math.sin(1.5 * i / 10.0) * LIDAR_RANGE, y[k] - math.cos(1.5 * i / 10.0) * LIDAR_RANGE)
+            walker.world.RayCast(ray, ray.p1, ray.p2)
+            expected[k, i] = ray.fraction
+    fractions = np.concatenate([lidar.scan(x[j : j + 16], y[j : j + 16]) for j in range(0, len(x), 16)])
+    assert np.array_equal(fractions, expected.astype(np.float32))
+    assert (expected < 1).mean() > 0.3 and (expected == 1).mean() > 0.1  # hits and misses both common
+
+
 def run_episode(env: WalkerEnv, actions: np.ndarray) -> list:
     """(obs, reward) of copy 0 for the actions, up to the end of its episode."""
     run = []
@@ -230,9 +312,12 @@ def test_actions_are_clipped_to_the_box():
 
 
 def test_worker_processes_match_the_in_process_path():
+    """This process and 1 or 2 workers stepping shares of the copies give what this process alone gives;
+    the returned arrays are the caller's (the next step does not overwrite them)."""
     results = []
-    for workers in (0, 2):
+    for workers in (0, 1, 2):
         env = WalkerEnv(5, seed=0, num_workers=workers)
+        assert len(env.shares) == workers + 1
         batch = env.random_levels(5, np.random.default_rng(1))
         out = [env.reset(batch, max_steps=25)["state"]]
         for action in np.random.default_rng(2).uniform(-1, 1, (60, 5, 4)):
@@ -242,9 +327,30 @@ def test_worker_processes_match_the_in_process_path():
             processes = env._finalizer.peek()[2][0]
             env.close()
             env.close()  # safe twice
-            assert len(processes) == 2 and not any(p.is_alive() for p in processes)
+            assert len(processes) == workers and not any(p.is_alive() for p in processes)
         results.append(out)
-    assert all(np.array_equal(a, b) for a, b in zip(*results))
+    for other in results[1:]:
+        assert all(np.array_equal(a, b) for a, b in zip(results[0], other))
+
+
+def test_a_worker_error_is_raised_by_the_env(monkeypatch):
+    """An exception in a worker process reaches the caller of step; the env still closes cleanly."""
+    parent = os.getpid()
+    advance = DesignedBipedalWalker.advance
+
+    def advance_in_parent_only(self, action):
+        if os.getpid() != parent:
+            raise RuntimeError("walker failed in a worker")
+        return advance(self, action)
+
+    monkeypatch.setattr(DesignedBipedalWalker, "advance", advance_in_parent_only)
+    env = WalkerEnv(4, seed=0, num_workers=1)
+    env.reset(levels(FLAT, FLAT, FLAT, FLAT))
+    with pytest.raises(RuntimeError, match="walker failed in a worker"):
+        env.step(np.zeros((4, 4)))
+    processes = env._finalizer.peek()[2][0]
+    env.close()
+    assert not any(p.is_alive() for p in processes)
 
 
 def test_bad_input_raises_value_error(walker_env):
