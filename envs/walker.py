@@ -332,6 +332,9 @@ LIDAR_RAYS = 10
 LIDAR_REACH_X = np.array([math.sin(1.5 * i / 10.0) * gym_walker.LIDAR_RANGE for i in range(LIDAR_RAYS)])
 LIDAR_REACH_Y = np.array([-math.cos(1.5 * i / 10.0) * gym_walker.LIDAR_RANGE for i in range(LIDAR_RAYS)])
 HULL_TAG = "hull"  # the hull's fixture userData for GroundContacts; the lower legs' is their index in legs
+# gymnasium subtracts each joint's cost, a Python float times numpy's float32 |action|, from a Python
+# float: float32 arithmetic under numpy 2's promotion rules (NEP 50), float64 under numpy 1's.
+REWARD_DTYPE = (0.0 - np.float32(1.0) * 1.0).dtype
 
 
 class GroundContacts(Box2D.b2.contactListener):
@@ -549,14 +552,15 @@ class WalkerGroup:
         obs[:, 14:] = self.lidar.scan(x, y)
         obs = obs.astype(np.float32)
 
-        # gymnasium's reward: the change of the shaping (double precision), minus a torque cost per joint;
-        # a Python float minus numpy's float32 |action| term is float32, so from there on it is float32
+        # gymnasium's reward: the change of the shaping (double precision), minus a torque cost per joint
+        # in numpy's arithmetic for float32 actions (REWARD_DTYPE)
         shaping = 130 * x / scale - 5.0 * np.abs(angle)
-        reward = (shaping - self.prev_shaping).astype(np.float32)
+        reward = (shaping - self.prev_shaping).astype(REWARD_DTYPE)
         self.prev_shaping = shaping
-        torque_cost = np.float32(0.00035 * gym_walker.MOTORS_TORQUE) * np.minimum(np.abs(actions), 1)
+        torque_cost = REWARD_DTYPE.type(0.00035 * gym_walker.MOTORS_TORQUE) * np.minimum(np.abs(actions), 1).astype(REWARD_DTYPE)
         for joint in range(ACTION_DIM):  # one at a time, in gymnasium's order
             reward -= torque_cost[:, joint]
+        reward = reward.astype(np.float32)
         fallen = (physics[:, 16] > 0) | (x < 0)  # the hull touched the ground, or the walker left the course
         reward[fallen] = -100
         terminated = fallen | (x > (TERRAIN_LENGTH - TERRAIN_GRASS) * TERRAIN_STEP)  # reached the end
