@@ -364,10 +364,10 @@ class GroundContacts(Box2D.b2.contactListener):
                 self.walker.legs[tag].ground_contact = False
 
     def PreSolve(self, contact, old_manifold):
-        pass
+        """Nothing to record before a contact is solved (defined so that no base-class call is made)."""
 
     def PostSolve(self, contact, impulse):
-        pass
+        """Nothing to record after a contact is solved (defined so that no base-class call is made)."""
 
 
 class TerrainLidar:
