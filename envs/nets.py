@@ -152,11 +152,12 @@ class ResettableLSTM(nn.Module):
         # episode), zero for every later segment (index 0 of the padded states below is zero).
         first = (segment_t0 == 0) & ~done[0, segment_copy]
         state_source = torch.where(first, segment_copy + 1, 0)
-        h_all = torch.cat([x.new_zeros(1, self.hidden_size), state[0][0]])[state_source]
-        c_all = torch.cat([x.new_zeros(1, self.hidden_size), state[1][0]])[state_source]
+        h_all = torch.cat([x.new_zeros(1, self.hidden_size), state[0][0]]).index_select(0, state_source)
+        c_all = torch.cat([x.new_zeros(1, self.hidden_size), state[1][0]]).index_select(0, state_source)
 
         # Bucket segments by length; pad each bucket into one [length, segments] batch gathered from
-        # the time-major rows of x (row steps * num_copies is a zero row for the padding).
+        # the time-major rows of x (row steps * num_copies is a zero row for the padding). Rows are
+        # gathered with index_select: its backward (index_add) is ~5x faster on CPU than indexing's.
         x_rows = torch.cat([x.reshape(steps * num_copies, -1), x.new_zeros(1, x.shape[2])])
         longest = segment_length.max().float()
         bucket = torch.floor(torch.log(longest / segment_length.float()) / -math.log(BUCKET_LENGTH_FACTOR)).long()
@@ -169,13 +170,13 @@ class ResettableLSTM(nn.Module):
             valid = t < length.unsqueeze(0)
             rows = (segment_t0[members].unsqueeze(0) + t) * num_copies + segment_copy[members].unsqueeze(0)
             rows = torch.where(valid, rows, steps * num_copies)
-            padded = x_rows[rows.reshape(-1)].view(padded_length, len(members), -1)
-            bucket_out, _ = self.lstm(padded, (h_all[members].unsqueeze(0), c_all[members].unsqueeze(0)))
+            padded = x_rows.index_select(0, rows.reshape(-1)).view(padded_length, len(members), -1)
+            bucket_out, _ = self.lstm(padded, (h_all.index_select(0, members).unsqueeze(0), c_all.index_select(0, members).unsqueeze(0)))
             outputs.append(bucket_out.reshape(-1, self.hidden_size))
             slots = torch.arange(used, used + rows.numel(), device=device).view_as(rows)
             position_of_row[rows[valid]] = slots[valid]
             used += rows.numel()
-        return torch.cat(outputs)[position_of_row]
+        return torch.cat(outputs).index_select(0, position_of_row)
 
 
 class RecurrentCategoricalActorCritic(nn.Module):
@@ -208,8 +209,9 @@ class RecurrentCategoricalActorCritic(nn.Module):
         hidden, state = self._hidden(obs, state, done)
         log_probs = torch.log_softmax(self.actor(hidden), dim=-1)  # Categorical's maths, minus its overhead
         probs = log_probs.exp()
-        if action is None:
-            action = torch.multinomial(probs, 1).squeeze(-1)
+        if action is None:  # inverse-CDF sampling: ~4x cheaper per call on CPU than torch.multinomial
+            uniform = torch.rand(len(probs), 1, device=probs.device)
+            action = torch.searchsorted(probs.cumsum(-1), uniform, right=True).squeeze(-1).clamp_(max=probs.shape[-1] - 1)
         entropy = -(probs * log_probs).sum(-1)
         logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
         return action, logprob, entropy, self.critic(hidden).squeeze(-1), state

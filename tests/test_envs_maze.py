@@ -789,6 +789,37 @@ def test_student_network_shapes_and_env_obs():
     assert torch.allclose(net.get_value(seq, state, done)[:N], first, atol=1e-5)
 
 
+def test_student_view_features_equal_the_conv_they_replace():
+    # The student runs its 3x3 conv over the 5x5 view as one matmul with the conv's matrix, and its
+    # direction embedding as a row lookup; both must give what nn.Conv2d + ReLU and one-hot x Linear give,
+    # and the same gradients.
+    torch.manual_seed(0)
+    net = MazeStudent()
+    view = torch.randint(0, 11, (64, 5, 5, 3), dtype=torch.uint8)
+    view[0] = 0
+    view[0, 1, 3] = torch.tensor([2, 5, 0], dtype=torch.uint8)  # one wall, every other cell 0
+    reference = torch.relu(net.conv(view.permute(0, 3, 1, 2).float() / 10.0)).flatten(1)
+    features = net.view_features(view)
+    assert torch.allclose(features, reference, atol=1e-6)
+    # By hand for view 0: the output at (y, x) sees the wall at (1, 3) through kernel tap (1 - y, 3 - x).
+    w, b = net.conv.weight.detach(), net.conv.bias.detach()
+    by_hand = b.view(16, 1, 1).repeat(1, 3, 3)
+    for y in range(3):
+        for x in range(3):
+            if 0 <= 1 - y < 3 and 0 <= 3 - x < 3:
+                by_hand[:, y, x] += w[:, :, 1 - y, 3 - x] @ torch.tensor([0.2, 0.5, 0.0])
+    assert torch.allclose(features[0], torch.relu(by_hand).flatten(), atol=1e-6)
+    weights = torch.randn_like(reference)
+    expected = torch.autograd.grad((reference * weights).sum(), (net.conv.weight, net.conv.bias))
+    got = torch.autograd.grad((features * weights).sum(), (net.conv.weight, net.conv.bias))
+    for a, b in zip(got, expected):
+        assert torch.allclose(a, b, atol=1e-4)
+    direction = torch.tensor([0, 1, 2, 3, 2])
+    one_hot = net.direction_embed(torch.nn.functional.one_hot(direction, 4).float())
+    lookup = torch.nn.functional.embedding(direction, net.direction_embed.weight.t()) + net.direction_embed.bias
+    assert torch.equal(one_hot, lookup)
+
+
 def test_student_init_gains():
     torch.manual_seed(0)
     net = MazeStudent()
@@ -797,7 +828,7 @@ def test_student_init_gains():
         w = w.detach().reshape(len(w), -1)
         return w @ w.t()
 
-    assert torch.allclose(gram(net.conv[0].weight), 2.0 * torch.eye(16), atol=1e-4)  # gain sqrt(2)
+    assert torch.allclose(gram(net.conv.weight), 2.0 * torch.eye(16), atol=1e-4)  # gain sqrt(2)
     assert torch.allclose(gram(net.actor[-1].weight), 1e-4 * torch.eye(7), atol=1e-7)  # gain 0.01
     assert torch.allclose(gram(net.critic[-1].weight), torch.ones(1, 1), atol=1e-5)  # gain 1
     assert torch.all(net.actor[-1].bias == 0)

@@ -25,8 +25,8 @@ def test_dr_student_learns_to_reach_the_goal_in_empty_rooms():
         return evaluate(agent, "maze", empty_rooms, 200, seed=123, device="cpu").mean()
 
     before = mean_return()
-    for update in range(1, 31):
+    for update in range(1, 46):
         advantages, returns, _ = plr.collect_rollout(agent, env, env.empty_levels(args.num_envs, rng), storage, args, "cpu")
         plr.ppo_update(agent, optimizer, storage, advantages, returns, args, update, "cpu")
     after = mean_return()
-    assert after > before + 0.2, (before, after)  # measured: 0.05 -> 0.43
+    assert after > before + 0.2, (before, after)  # measured: 0.04 -> 0.35 (seeds 1-5: 0.52-0.63)

@@ -2,7 +2,7 @@
 
 import torch
 
-from envs.nets import MaskedLSTMRecurrence, ResettableLSTM
+from envs.nets import MaskedLSTMRecurrence, RecurrentCategoricalActorCritic, ResettableLSTM
 
 
 def step_by_step(lstm, x, state, done, num_copies):
@@ -86,3 +86,32 @@ def test_masked_recurrence_passes_gradcheck():
     keep = torch.ones(steps, copies, 1, dtype=torch.float64)
     keep[2, 0] = keep[4, 1] = 0.0
     assert torch.autograd.gradcheck(MaskedLSTMRecurrence.apply, (projected, weight_hh, h0, c0, keep))
+
+
+class FixedPolicy(RecurrentCategoricalActorCritic):
+    """A recurrent net whose policy is the same categorical distribution for every input."""
+
+    def __init__(self, logits: torch.Tensor):
+        super().__init__()
+        self.lstm = ResettableLSTM(1, 2)
+        self.logits = logits
+        self.actor = lambda hidden: self.logits.expand(len(hidden), -1)
+        self.critic = lambda hidden: hidden[:, :1]
+
+    def _hidden(self, obs, state, done):
+        return self.lstm(obs["x"], state, done)
+
+
+def test_sampled_actions_follow_the_policy():
+    torch.manual_seed(5)
+    probs = torch.tensor([0.5, 0.0, 0.3, 0.2, 0.0])
+    net = FixedPolicy(torch.log(probs.clamp(min=1e-12)))
+    n = 200_000
+    with torch.no_grad():
+        action, logprob, entropy, _, _ = net.get_action_and_value({"x": torch.zeros(n, 1)}, net.initial_state(n), torch.ones(n))
+    counts = torch.bincount(action, minlength=5).float()
+    assert counts[1] == 0 and counts[4] == 0  # actions of probability 0 (up to 1e-12) never drawn
+    tolerance = 4 * torch.sqrt(probs * (1 - probs) / n)  # 4 standard errors
+    assert torch.all((counts / n - probs).abs() <= tolerance + 1e-9)
+    assert torch.allclose(logprob, torch.log(probs.clamp(min=1e-12))[action])
+    assert torch.allclose(entropy, torch.full((n,), -(probs[probs > 0] * probs[probs > 0].log()).sum().item()), atol=1e-5)
