@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from envs.levels import HeldOutLevel, LevelBatch
-from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
+from envs.nets import DerivedWeights, RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
 
 EMPTY, WALL, GOAL = 0, 1, 2
 # MiniGrid's (type, colour, state) encoding of each cell code; the networks divide it by 10.
@@ -380,9 +380,10 @@ class MazeStudent(RecurrentCategoricalActorCritic):
     actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1.
 
     The conv over a 5x5 view is a linear map from 75 inputs to 144 outputs. It runs as one matmul with
-    that map's matrix, built from the conv's weights at every call: measured 1.5-4x cheaper on CPU than
-    the conv call at a rollout step's batch of 32 (tests/test_envs_maze.py checks both give the same
-    features and gradients). Likewise the direction's one-hot times a matrix is a row lookup."""
+    that map's matrix, built from the conv's weights (at every call with gradient, once per weight
+    change when acting): measured 1.5-4x cheaper on CPU than the conv call at a rollout step's batch of
+    32 (tests/test_envs_maze.py checks both give the same features and gradients). Likewise the
+    direction's one-hot times a matrix is a row lookup."""
 
     def __init__(self, hidden_size: int = 256):
         super().__init__()
@@ -394,20 +395,25 @@ class MazeStudent(RecurrentCategoricalActorCritic):
         positions, weight_index = conv_matrix_indices(3, 16, VIEW_SIZE, 3)
         self.register_buffer("conv_positions", positions, persistent=False)
         self.register_buffer("conv_weight_index", weight_index, persistent=False)
+        self.acting_conv = DerivedWeights()  # the conv's matrix, rebuilt when its weights change
         self.conv_matrix_shape = (VIEW_SIZE * VIEW_SIZE * 3, 16 * (VIEW_SIZE - 2) ** 2)
 
     def view_features(self, image: torch.Tensor) -> torch.Tensor:
         """ReLU(conv(view)) flattened, [B, 144], from the view [B, 5, 5, 3] as the env gives it."""
+        rows, _ = self.conv_matrix_shape
+        matrix, bias = self._conv_as_matrix() if torch.is_grad_enabled() else self.acting_conv.get([self.conv.weight, self.conv.bias], self._conv_as_matrix)
+        return torch.relu(torch.addmm(bias, image.reshape(len(image), rows).float() / 10.0, matrix))
+
+    def _conv_as_matrix(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The conv's matrix [75, 144] and its bias per output, (channel, y, x)."""
         rows, columns = self.conv_matrix_shape
         weight = self.conv.weight.reshape(-1).index_select(0, self.conv_weight_index)
         matrix = weight.new_zeros(rows * columns).scatter(0, self.conv_positions, weight).view(rows, columns)
-        bias = self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2)  # one per output, (channel, y, x)
-        return torch.relu(torch.addmm(bias, image.reshape(len(image), rows).float() / 10.0, matrix))
+        return matrix, self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2)
 
-    def _hidden(self, obs: dict, state, done):
+    def features(self, obs: dict) -> torch.Tensor:
         direction = nn.functional.embedding(obs["direction"].long(), self.direction_embed.weight.t()) + self.direction_embed.bias
-        features = torch.cat([self.view_features(obs["image"]), direction], dim=1)
-        return self.lstm(features, state, done)
+        return torch.cat([self.view_features(obs["image"]), direction], dim=1)
 
 
 class MazeTeacher(RecurrentCategoricalActorCritic):
@@ -426,8 +432,7 @@ class MazeTeacher(RecurrentCategoricalActorCritic):
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, num_actions), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
 
-    def _hidden(self, obs: dict, state, done):
+    def features(self, obs: dict) -> torch.Tensor:
         image = obs["image"].permute(0, 3, 1, 2).float() / 10.0
         time = nn.functional.one_hot(obs["time"].long(), self.num_steps).float()
-        features = torch.cat([self.conv(image), self.time_embed(time), obs["noise"].float()], dim=1)
-        return self.lstm(features, state, done)
+        return torch.cat([self.conv(image), self.time_embed(time), obs["noise"].float()], dim=1)

@@ -1,6 +1,8 @@
 """The fast sequence path of ResettableLSTM computes exactly what stepping the LSTM one step at a time does."""
 
+import pytest
 import torch
+from torch import nn
 
 from envs.nets import MaskedLSTMRecurrence, RecurrentCategoricalActorCritic, ResettableLSTM
 
@@ -46,6 +48,50 @@ def test_sequence_path_gradients_equal_step_loop():
         assert torch.allclose(a, b, atol=1e-4)
 
 
+def test_reset_steps_reset_exactly_with_large_weights_and_states():
+    """The inserted reset steps zero the state even with the input and forget gates' biases at +95 (far
+    beyond what training reaches; with them an incomplete reset would carry c forward) and large inputs
+    and state: outputs equal the step loop's, and nothing leaks back through a reset."""
+    torch.manual_seed(6)
+    lstm = ResettableLSTM(4, 8)
+    with torch.no_grad():
+        for param in lstm.parameters():
+            param.mul_(3.0)
+        lstm.lstm.bias_ih_l0[:16] = 95.0
+    steps, copies = 12, 3
+    x = (50 * torch.randn(steps * copies, 4)).requires_grad_()
+    done = torch.zeros(steps * copies)
+    done[[4 * copies, 5 * copies, 9 * copies + 1]] = 1.0  # copy 0 resets twice in a row
+    state = (torch.full((1, copies, 8), 0.9), torch.full((1, copies, 8), 40.0))
+    fast, _ = lstm(x, state, done)
+    slow, _ = step_by_step(lstm, x, state, done, copies)
+    assert torch.allclose(fast, slow, atol=1e-5)
+    # The loss of copy 0's steps after its last reset has no gradient at the inputs before it.
+    after_reset = fast.view(steps, copies, 8)[5:, 0].sum()
+    grad = torch.autograd.grad(after_reset, x)[0].view(steps, copies, 4)
+    assert grad[:5, 0].abs().max() == 0 and grad[5:, 0].abs().max() > 0 and grad[:, 1:].abs().max() == 0
+
+
+def test_acting_step_equals_the_training_step():
+    """Without gradient a step runs on cached transposed weights; it computes torch's LSTM cell, and the
+    cache follows an optimizer step and a load_state_dict."""
+    torch.manual_seed(7)
+    lstm = ResettableLSTM(5, 6)
+    x, done = torch.randn(4, 5), torch.tensor([0.0, 1.0, 0.0, 0.0])
+    state = (torch.randn(1, 4, 6), torch.randn(1, 4, 6))
+    optimizer = torch.optim.Adam(lstm.parameters(), lr=0.1)
+    for change in ("none", "optimizer step", "load_state_dict"):
+        if change == "optimizer step":
+            lstm(x, state, done)[0].sum().backward()
+            optimizer.step()
+        elif change == "load_state_dict":
+            lstm.load_state_dict(ResettableLSTM(5, 6).state_dict())
+        out, (h, c) = lstm(x, state, done)
+        with torch.no_grad():
+            acting_out, (acting_h, acting_c) = lstm(x, state, done)
+        assert torch.allclose(acting_out, out, atol=1e-6) and torch.allclose(acting_c, c, atol=1e-6)
+
+
 def test_reset_zeroes_state():
     torch.manual_seed(2)
     lstm = ResettableLSTM(3, 4)
@@ -58,9 +104,10 @@ def test_reset_zeroes_state():
     assert not torch.allclose(out_reset, out_carry)
 
 
-def test_sequence_path_gradients_reach_the_initial_state_and_inputs():
+@pytest.mark.parametrize("project_inputs_first", [False, True])
+def test_sequence_path_gradients_reach_the_initial_state_and_inputs(project_inputs_first):
     torch.manual_seed(3)
-    lstm = ResettableLSTM(9, 12, project_inputs_first=True)
+    lstm = ResettableLSTM(9, 12, project_inputs_first=project_inputs_first)
     steps, copies = 15, 3
     x = torch.randn(steps * copies, 9, requires_grad=True)
     done = (torch.rand(steps * copies) < 0.2).float()
@@ -89,17 +136,21 @@ def test_masked_recurrence_passes_gradcheck():
 
 
 class FixedPolicy(RecurrentCategoricalActorCritic):
-    """A recurrent net whose policy is the same categorical distribution for every input."""
+    """A recurrent net whose policy is the same categorical distribution for every input: its heads'
+    weights are 0 and the actor's output bias is the logits."""
 
     def __init__(self, logits: torch.Tensor):
         super().__init__()
         self.lstm = ResettableLSTM(1, 2)
-        self.logits = logits
-        self.actor = lambda hidden: self.logits.expand(len(hidden), -1)
-        self.critic = lambda hidden: hidden[:, :1]
+        self.actor = nn.Sequential(nn.Linear(2, 32), nn.Tanh(), nn.Linear(32, len(logits)))
+        self.critic = nn.Sequential(nn.Linear(2, 32), nn.Tanh(), nn.Linear(32, 1))
+        for param in self.parameters():
+            nn.init.zeros_(param)
+        with torch.no_grad():
+            self.actor[2].bias.copy_(logits)
 
-    def _hidden(self, obs, state, done):
-        return self.lstm(obs["x"], state, done)
+    def features(self, obs):
+        return obs["x"]
 
 
 def test_sampled_actions_follow_the_policy():
