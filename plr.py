@@ -349,39 +349,55 @@ class ReturnNormalizer:
 @torch.no_grad()
 def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and episode stats
-    (episode returns are the env's own rewards; training uses the normalized ones if `normalizer`)."""
+    (episode returns are the env's own rewards; training uses the normalized ones if `normalizer`).
+    Each step's data are kept in numpy arrays and lists and moved into `storage` once at the end: at
+    a maze step's size, a dozen small tensor copies per step would cost more than the env step."""
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
+    step_obs = {k: np.empty((args.num_steps,) + v.shape, v.dtype) for k, v in obs.items()}
+    rewards = np.empty((args.num_steps, args.num_envs), np.float32)
+    starts = np.empty((args.num_steps, args.num_envs), bool)  # True where an episode starts at step t
+    actions, logprobs, values = [], [], []
+    ended = np.ones(args.num_envs, dtype=bool)
     episode_returns, running_return = [], np.zeros(args.num_envs)
     for step in range(args.num_steps):
         for k, v in obs.items():
-            storage.obs[k][step] = torch.from_numpy(v)
-        storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(to_torch(obs, device), state, done)
-        storage.actions[step] = action
-        storage.logprobs[step] = logprob
-        storage.values[step] = value
+            step_obs[k][step] = v
+        starts[step] = ended
+        action, logprob, _, value, state = agent.get_action_and_value(to_torch(obs, device), state, torch.from_numpy(ended).to(device))
+        actions.append(action)
+        logprobs.append(logprob)
+        values.append(value)
         obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        ended = terminated | truncated
-        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
-        running_return += reward
-        episode_returns.extend(running_return[ended].tolist())
-        running_return[ended] = 0.0
         # An episode that hits the env's step limit ends like a terminal one (no time input; as the
         # reference); the rollout's own end is a truncation, bootstrapped from the value below.
-        done = torch.as_tensor(ended, dtype=torch.float32, device=device)
-    next_value = agent.get_value(to_torch(obs, device), state, done)
-    advantages = torch.zeros_like(storage.rewards)
-    last = torch.zeros(args.num_envs, device=device)
+        ended = terminated | truncated
+        rewards[step] = reward if normalizer is None else normalizer(reward, ended)
+        running_return += reward
+        if ended.any():
+            episode_returns.extend(running_return[ended].tolist())
+            running_return[ended] = 0.0
+    next_value = agent.get_value(to_torch(obs, device), state, torch.from_numpy(ended).to(device)).cpu().numpy()
+    for k, v in step_obs.items():
+        storage.obs[k].copy_(torch.from_numpy(v))
+    torch.stack(actions, out=storage.actions)
+    torch.stack(logprobs, out=storage.logprobs)
+    torch.stack(values, out=storage.values)
+    storage.rewards.copy_(torch.from_numpy(rewards))
+    storage.dones.copy_(torch.from_numpy(starts))
+    # GAE (in numpy: 256 small steps are cheaper there than as tensor ops).
+    value = storage.values.cpu().numpy()
+    next_nonterminal = 1.0 - np.concatenate([starts[1:], ended[None]]).astype(np.float32)
+    following = np.concatenate([value[1:], next_value[None]])
+    delta = rewards + args.gamma * following * next_nonterminal - value
+    advantages = np.empty_like(rewards)
+    last = np.zeros(args.num_envs, np.float32)
     for t in reversed(range(args.num_steps)):
-        next_nonterminal = 1.0 - (done if t == args.num_steps - 1 else storage.dones[t + 1])
-        following = next_value if t == args.num_steps - 1 else storage.values[t + 1]
-        delta = storage.rewards[t] + args.gamma * following * next_nonterminal - storage.values[t]
-        last = delta + args.gamma * args.gae_lambda * next_nonterminal * last
+        last = delta[t] + args.gamma * args.gae_lambda * next_nonterminal[t] * last
         advantages[t] = last
+    advantages = torch.from_numpy(advantages).to(device)
     return advantages, advantages + storage.values, episode_returns
 
 

@@ -395,25 +395,24 @@ class MazeStudent(RecurrentCategoricalActorCritic):
         positions, weight_index = conv_matrix_indices(3, 16, VIEW_SIZE, 3)
         self.register_buffer("conv_positions", positions, persistent=False)
         self.register_buffer("conv_weight_index", weight_index, persistent=False)
-        self.acting_conv = DerivedWeights()  # the conv's matrix, rebuilt when its weights change
+        self.acting_maps = DerivedWeights()  # input_maps, rebuilt only when the weights change
         self.conv_matrix_shape = (VIEW_SIZE * VIEW_SIZE * 3, 16 * (VIEW_SIZE - 2) ** 2)
 
-    def view_features(self, image: torch.Tensor) -> torch.Tensor:
-        """ReLU(conv(view)) flattened, [B, 144], from the view [B, 5, 5, 3] as the env gives it."""
-        rows, _ = self.conv_matrix_shape
-        matrix, bias = self._conv_as_matrix() if torch.is_grad_enabled() else self.acting_conv.get([self.conv.weight, self.conv.bias], self._conv_as_matrix)
-        return torch.relu(torch.addmm(bias, image.reshape(len(image), rows).float() / 10.0, matrix))
-
-    def _conv_as_matrix(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """The conv's matrix [75, 144] and its bias per output, (channel, y, x)."""
+    def input_maps(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The conv's matrix [75, 144], its bias per output (channel, y, x), and the direction's
+        embedding per direction [4, 5]."""
         rows, columns = self.conv_matrix_shape
         weight = self.conv.weight.reshape(-1).index_select(0, self.conv_weight_index)
         matrix = weight.new_zeros(rows * columns).scatter(0, self.conv_positions, weight).view(rows, columns)
-        return matrix, self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2)
+        direction_table = self.direction_embed.weight.t() + self.direction_embed.bias
+        return matrix, self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2), direction_table
 
     def features(self, obs: dict) -> torch.Tensor:
-        direction = nn.functional.embedding(obs["direction"].long(), self.direction_embed.weight.t()) + self.direction_embed.bias
-        return torch.cat([self.view_features(obs["image"]), direction], dim=1)
+        """[ReLU(conv(view)) flattened (144), direction embedding (5)] from the env's observation."""
+        image = obs["image"]
+        matrix, bias, direction_table = self.input_maps() if torch.is_grad_enabled() else self.acting_maps.get([self.conv, self.direction_embed], self.input_maps)
+        view = torch.relu(torch.addmm(bias, image.reshape(len(image), len(matrix)).float() / 10.0, matrix))
+        return torch.cat([view, direction_table.index_select(0, obs["direction"].long())], dim=1)
 
 
 class MazeTeacher(RecurrentCategoricalActorCritic):

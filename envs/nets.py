@@ -22,16 +22,18 @@ def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) 
 
 
 class DerivedWeights:
-    """Tensors computed from some parameters for acting without gradient (a transposed weight, fused
-    heads), rebuilt only after one of the parameters changed. Every in-place change of a parameter (an
-    optimizer step, `load_state_dict`) bumps its version counter, and moving it changes its storage.
+    """Tensors computed from some modules' parameters for acting without gradient (a transposed weight,
+    fused heads), rebuilt only after one of the parameters changed. Every in-place change of a parameter
+    (an optimizer step, `load_state_dict`) bumps its version counter, and moving it changes its storage.
     At a rollout step's small batch, rebuilding them at each call costs more than the matmuls they feed."""
 
     def __init__(self):
-        self.key, self.value = None, None
+        self.params, self.key, self.value = None, None, None
 
-    def get(self, params: list[torch.Tensor], build):
-        key = [(p.data_ptr(), p._version) for p in params]
+    def get(self, modules: list[nn.Module], build):
+        if self.params is None:  # the same Parameter objects for the module's life (.to() moves their data)
+            self.params = [p for module in modules for p in module.parameters()]
+        key = [(p.data_ptr(), p._version) for p in self.params]
         if key != self.key:
             self.key, self.value = key, build()
         return self.value
@@ -170,7 +172,7 @@ class ResettableLSTM(nn.Module):
         lstm = self.lstm
         if torch.is_grad_enabled():
             return torch.lstm_cell(x, (h, c), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
-        weight_ih_t, weight_hh_t, bias = self.acting_weights.get(list(lstm.parameters()), self._acting_weights)
+        weight_ih_t, weight_hh_t, bias = self.acting_weights.get([lstm], self._acting_weights)
         gates = torch.addmm(bias, x, weight_ih_t).addmm_(h, weight_hh_t)
         hidden = self.hidden_size
         gates[:, : 2 * hidden].sigmoid_()  # i, f
@@ -246,7 +248,7 @@ class RecurrentCategoricalActorCritic(nn.Module):
         if torch.is_grad_enabled():
             logits, value = self.actor(hidden), self.critic(hidden).squeeze(-1)
         else:  # acting: both heads as two matmuls of their fused weights (see _fused_heads)
-            first, first_bias, second, second_bias = self.acting_heads.get(list(self.actor.parameters()) + list(self.critic.parameters()), self._fused_heads)
+            first, first_bias, second, second_bias = self.acting_heads.get([self.actor, self.critic], self._fused_heads)
             out = torch.addmm(second_bias, torch.addmm(first_bias, hidden, first).tanh_(), second)
             logits, value = out[:, :-1], out[:, -1]
         log_probs = torch.log_softmax(logits, dim=-1)  # Categorical's maths, minus its overhead

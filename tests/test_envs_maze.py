@@ -799,7 +799,9 @@ def test_student_view_features_equal_the_conv_they_replace():
     view[0] = 0
     view[0, 1, 3] = torch.tensor([2, 5, 0], dtype=torch.uint8)  # one wall, every other cell 0
     reference = torch.relu(net.conv(view.permute(0, 3, 1, 2).float() / 10.0)).flatten(1)
-    features = net.view_features(view)
+    direction = torch.randint(0, 4, (64,))
+    all_features = net.features({"image": view, "direction": direction})
+    features = all_features[:, :144]
     assert torch.allclose(features, reference, atol=1e-6)
     # By hand for view 0: the output at (y, x) sees the wall at (1, 3) through kernel tap (1 - y, 3 - x).
     w, b = net.conv.weight.detach(), net.conv.bias.detach()
@@ -814,10 +816,13 @@ def test_student_view_features_equal_the_conv_they_replace():
     got = torch.autograd.grad((features * weights).sum(), (net.conv.weight, net.conv.bias))
     for a, b in zip(got, expected):
         assert torch.allclose(a, b, atol=1e-4)
-    direction = torch.tensor([0, 1, 2, 3, 2])
     one_hot = net.direction_embed(torch.nn.functional.one_hot(direction, 4).float())
-    lookup = torch.nn.functional.embedding(direction, net.direction_embed.weight.t()) + net.direction_embed.bias
-    assert torch.equal(one_hot, lookup)
+    assert torch.allclose(all_features[:, 144:], one_hot, atol=1e-7)
+    weights = torch.randn_like(one_hot)
+    expected = torch.autograd.grad((one_hot * weights).sum(), (net.direction_embed.weight, net.direction_embed.bias))
+    got = torch.autograd.grad((all_features[:, 144:] * weights).sum(), (net.direction_embed.weight, net.direction_embed.bias))
+    for a, b in zip(got, expected):
+        assert torch.allclose(a, b, atol=1e-5)
 
 
 def test_student_acting_without_gradient_equals_the_training_path():
