@@ -168,22 +168,24 @@ class ResettableLSTM(nn.Module):
 
     def _step(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """One LSTM step. With gradient: torch's fused cell. Without (acting in a rollout): the same
-        maths on cached transposed weights, in place, ~1.5x cheaper on CPU at a batch of 32."""
+        maths on cached transposed weights whose gate columns are reordered to i, f, o, g (the three
+        sigmoids side by side), in place: ~1.5x cheaper on CPU at a batch of 32."""
         lstm = self.lstm
         if torch.is_grad_enabled():
             return torch.lstm_cell(x, (h, c), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
         weight_ih_t, weight_hh_t, bias = self.acting_weights.get([lstm], self._acting_weights)
         gates = torch.addmm(bias, x, weight_ih_t).addmm_(h, weight_hh_t)
-        hidden = self.hidden_size
-        gates[:, : 2 * hidden].sigmoid_()  # i, f
-        gates[:, 2 * hidden : 3 * hidden].tanh_()  # g
-        gates[:, 3 * hidden :].sigmoid_()  # o
-        c = torch.addcmul(gates[:, hidden : 2 * hidden] * c, gates[:, :hidden], gates[:, 2 * hidden : 3 * hidden])
-        return gates[:, 3 * hidden :] * torch.tanh(c), c
+        gates[:, : 3 * self.hidden_size].sigmoid_()
+        gates[:, 3 * self.hidden_size :].tanh_()
+        i, f, o, g = gates.chunk(4, 1)
+        c = torch.addcmul(f * c, i, g)
+        return o * torch.tanh(c), c
 
     def _acting_weights(self):
+        """W_ih^T, W_hh^T and b_ih + b_hh with the gates' columns in the order i, f, o, g."""
         lstm = self.lstm
-        return lstm.weight_ih_l0.t().contiguous(), lstm.weight_hh_l0.t().contiguous(), lstm.bias_ih_l0 + lstm.bias_hh_l0
+        order = torch.arange(4 * self.hidden_size, device=lstm.weight_ih_l0.device).view(4, -1)[[0, 1, 3, 2]].reshape(-1)
+        return lstm.weight_ih_l0[order].t().contiguous(), lstm.weight_hh_l0[order].t().contiguous(), (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order]
 
     def _run_with_reset_steps(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
         steps, num_copies, features = x.shape
