@@ -16,7 +16,6 @@ mapped to steer = 2 a0 - 1, gas = a1, brake = a2, held for 8 physics frames (act
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 import math
 import os
@@ -255,22 +254,6 @@ def build_world(env: CarRacingEnv, copy: int, track: Track) -> Box2D.b2World:
 # ---------------------------------------------------------------------------------------------------
 # The student env.
 # ---------------------------------------------------------------------------------------------------
-def reuse_freed_memory() -> None:
-    """Make glibc keep freed large blocks for reuse instead of returning them to the OS at once.
-
-    A PPO minibatch of 96x96x12 observations allocates and frees hundreds of MB of tensors per step;
-    by default glibc unmaps every block above 32 MB when it is freed, and the page faults of mapping it
-    again cost about a third of an update on CPU (measured: 1.46 s -> 0.94 s per 500-sample minibatch).
-    Raising the mmap and trim thresholds keeps those blocks in the heap. A no-op off glibc."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3  # mallopt parameters of glibc's malloc.h
-    libc.mallopt(m_mmap_threshold, 2**31 - 1)
-    libc.mallopt(m_trim_threshold, 2**31 - 1)
-
-
 class CarRacingEnv:
     """The CarRacing UPOMDP over `num_envs` copies (SPEC 2). See the module docstring for the
     observation and action. Reward per frame: +1000/N per newly visited tile, -0.1; leaving the
@@ -285,7 +268,6 @@ class CarRacingEnv:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.num_envs = num_envs
         self.rng = np.random.default_rng(seed)
-        reuse_freed_memory()
         self.single_observation_space = gym.spaces.Dict({"image": gym.spaces.Box(0, 255, (3 * FRAME_STACK, STATE_SIZE, STATE_SIZE), np.uint8)})
         self.single_action_space = gym.spaces.Box(0.0, 1.0, (3,), np.float32)
         self.Levels = CarRacingLevels
