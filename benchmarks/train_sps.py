@@ -90,7 +90,7 @@ print(f"DR         (trains every update):      {batch / (t_rollout + t_update):8
 print(f"PLR        (trains every update):      {batch / (t_rollout + t_update):8.0f} steps/s")
 print(f"Robust PLR (trains on half, p = 0.5):  {batch / (t_rollout + args.replay_prob * t_update):8.0f} steps/s")
 
-# A trained student ends many short episodes per rollout: more, shorter segments for the LSTM.
+# A trained student ends many short episodes per rollout: more reset steps in the LSTM's sequence.
 for mean_length in (20, 60):
     storage.dones.copy_((torch.rand_like(storage.dones) < 1.0 / mean_length).float())
     storage.dones[0] = 1.0

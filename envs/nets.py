@@ -123,7 +123,7 @@ class ResettableLSTM(nn.Module):
     number of resets; the sequences are padded at the end to the longest, and the real steps' outputs
     gathered back. Nothing flows back through a reset step: its gates' sigmoids are saturated at 0, so
     their derivatives are 0 too. This computes the same outputs and gradients as stepping T times
-    (tests/test_nets.py checks both) ~2.6x faster on CPU, and ~1.3x faster than running each episode
+    (tests/test_nets.py checks both) 2.6-3.6x faster on CPU, and ~1.3x faster than running each episode
     segment as its own padded sequence. With `project_inputs_first`, the T > 1 path instead projects all
     inputs in one matmul and runs the recurrence with `MaskedLSTMRecurrence`: faster when the input is
     far wider than the state (the maze teacher). The state after a training sequence is never needed, so
