@@ -169,7 +169,8 @@ class ResettableLSTM(nn.Module):
     def _step(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """One LSTM step. With gradient: torch's fused cell. Without (acting in a rollout): the same
         maths on cached transposed weights whose gate columns are reordered to i, f, o, g (the three
-        sigmoids side by side), in place: ~1.5x cheaper on CPU at a batch of 32."""
+        sigmoids side by side), in place: ~1.5x cheaper on CPU at a batch of 32 in a microbenchmark (5-10%
+        of a rollout step in the real loop, where every op's overhead is larger)."""
         lstm = self.lstm
         if torch.is_grad_enabled():
             return torch.lstm_cell(x, (h, c), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
@@ -198,8 +199,8 @@ class ResettableLSTM(nn.Module):
         length = int(position[-1].max()) + 1
         rows = (position * num_copies + copy).reshape(-1)  # each step's row in the [length * N] layout
         reset_rows = ((position - 1) * num_copies + copy)[resets]
-        # Rows are placed with index_copy and read back with index_select: their backward passes are
-        # each other, ~5x cheaper on CPU than indexing's accumulate.
+        # Rows are placed with index_copy (its backward is an index_select) and read back with
+        # index_select (its backward an index_add): ~5x cheaper on CPU than indexing's accumulate.
         placed = x.new_zeros(length * num_copies, features).index_copy(0, rows, x.reshape(steps * num_copies, features))
         reset_input = x.new_zeros(length * num_copies, 1).index_fill_(0, reset_rows, 1.0)
         inputs = torch.cat([placed, reset_input], 1).view(length, num_copies, features + 1)
