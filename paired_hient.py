@@ -279,7 +279,11 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
 def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
     """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
     copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps."""
+    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
+    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+    if num_minibatches == 1:
+        yield slice(None)
+        return
     if recurrent:
         order = torch.as_tensor(np.random.permutation(n), device=device)
         copies_per_batch = n // num_minibatches

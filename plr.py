@@ -404,7 +404,11 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
 def minibatch_rows(recurrent: bool, args: Args, device):
     """One epoch's minibatches as rows of the flattened time-major batch (row t * num_envs + n is step t
     of copy n). An LSTM needs whole rollouts: each minibatch holds all steps of some env copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps."""
+    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
+    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+    if args.num_minibatches == 1:
+        yield slice(None)
+        return
     if recurrent:
         order = torch.as_tensor(np.random.permutation(args.num_envs), device=device)
         copies_per_batch = args.num_envs // args.num_minibatches

@@ -5,7 +5,10 @@ Each script runs as a user would run it, in a temporary directory, for a few upd
 from its metrics.csv over the updates after the first (steps and time both cumulative there, evaluation
 excluded). Only the level buffer is shrunk (to 64 levels, 32 for the 16-copy envs) so that replay
 updates start after two updates instead of hundreds; a buffer's size does not change the cost of an
-update. For PAIRED the shares of the update spent in the teacher's rollout, the students' rollouts (env
+update. With a level buffer, the share of replay updates in a short run scatters around the replay
+probability p (11 updates at p = 0.5 give 3 to 8 replays), so the rate a long run converges to is
+printed too: the mean steps over the mean time of an update with p's mix of this run's replay and
+new-level updates. For PAIRED the shares of the update spent in the teacher's rollout, the students' rollouts (env
 and inference), their PPO updates and the teacher's update are printed too.
 
     python benchmarks/scripts_sps.py [--env maze] [--updates 8] [--only accel.py ...]
@@ -16,10 +19,13 @@ and inference), their PPO updates and the teacher's update are printed too.
 import argparse
 import csv
 import glob
+import json
 import os
 import subprocess
 import sys
 import tempfile
+
+import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 QUIET = ["--eval-interval", "100000", "--eval-episodes", "1", "--levels-interval", "100000", "--checkpoint-interval", "100000"]
@@ -61,13 +67,25 @@ for label, script, extra, counting in MAZE_CASES if options.env == "maze" else C
         if result.returncode != 0:
             print(f"{label:40s} failed: {result.stderr.strip().splitlines()[-1]}")
             continue
-        with open(glob.glob(os.path.join(tmp, "runs", "*", "metrics.csv"))[0], newline="") as f:
+        run_dir = glob.glob(os.path.join(tmp, "runs", "*"))[0]
+        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
             rows = list(csv.DictReader(f))
+        with open(os.path.join(run_dir, "args.json")) as f:
+            replay_prob = json.load(f).get("replay_prob")
     step_column = "student_steps" if "student_steps" in rows[0] else "env_steps"
-    first, last = rows[0], rows[-1]
-    elapsed = lambda r: float(r[step_column]) / float(r["sps"])  # noqa: E731
-    rate = (float(last[step_column]) - float(first[step_column])) / (elapsed(last) - elapsed(first))
+    steps = np.array([float(r[step_column]) for r in rows])
+    elapsed = steps / np.array([float(r["sps"]) for r in rows])
+    rate = (steps[-1] - steps[0]) / (elapsed[-1] - elapsed[0])
     line = f"{label:40s} {rate:9.0f}  {counting}"
+    if "replay" in rows[0] and replay_prob:
+        # Over a few updates the share of replay updates (which train, and in ACCEL also edit) scatters
+        # around the replay probability p; a long run's rate is the mean steps over the mean time of an
+        # update with p's mix, from this run's average replay and new-level updates.
+        replay = np.array([r["replay"] == "1" for r in rows])[1:]
+        step_sizes, times = np.diff(steps), np.diff(elapsed)
+        if replay.any() and (~replay).any():
+            mix = lambda x: replay_prob * x[replay].mean() + (1 - replay_prob) * x[~replay].mean()  # noqa: E731
+            line += f" | {replay.sum()}/{len(replay)} replay updates; at p = {replay_prob}: {mix(step_sizes) / mix(times):.0f}"
     if "time_teacher_update" in rows[0]:
         parts = ["time_teacher_rollout", "time_student_rollouts", "time_student_updates", "time_teacher_update"]
         totals = {p: sum(float(r[p]) for r in rows[1:]) for p in parts}

@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from envs.levels import HeldOutLevel, LevelBatch
-from envs.nets import DerivedWeights, RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
+from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
 
 EMPTY, WALL, GOAL = 0, 1, 2
 # MiniGrid's (type, colour, state) encoding of each cell code; the networks divide it by 10.
@@ -104,6 +104,11 @@ class MazeTeacherMDP:
 
     def step(self, actions) -> tuple[dict, bool]:
         """Place one cell per teacher; returns (observation, done). done is True after the last step."""
+        self.place(actions)
+        return self._observation(), self.t >= self.num_steps
+
+    def place(self, actions) -> None:
+        """One step's placements without the observation (the DR generator needs none)."""
         a = np.asarray(actions, dtype=np.int64)
         x, y = a % self.interior + 1, a // self.interior + 1
         index = np.arange(self.n)
@@ -123,7 +128,6 @@ class MazeTeacherMDP:
             free[np.arange(len(free)), self.goal[on_goal, 1], self.goal[on_goal, 0]] = False
             self.agent[on_goal] = random_free_cells(free, self.rng)
         self.t += 1
-        return self._observation(), self.t >= self.num_steps
 
     def levels(self) -> MazeLevels:
         return MazeLevels(self.walls.copy(), self.goal.copy(), self.agent.copy(), np.full(self.n, RANDOM_DIRECTION, np.int8))
@@ -254,7 +258,7 @@ class MazeEnv:
         mdp = MazeTeacherMDP(self.block_budget, self.uniform_budget, rng)
         mdp.reset(n)
         for _ in range(mdp.num_steps):
-            mdp.step(rng.integers(0, mdp.num_actions, n))
+            mdp.place(rng.integers(0, mdp.num_actions, n))
         return mdp.levels()
 
     def empty_levels(self, n: int, rng: np.random.Generator) -> MazeLevels:
@@ -380,10 +384,11 @@ class MazeStudent(RecurrentCategoricalActorCritic):
     actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1.
 
     The conv over a 5x5 view is a linear map from 75 inputs to 144 outputs. It runs as one matmul with
-    that map's matrix, built from the conv's weights (at every call with gradient, once per weight
-    change when acting): measured 1.5-4x cheaper on CPU than the conv call at a rollout step's batch of
-    32 (tests/test_envs_maze.py checks both give the same features and gradients). Likewise the
-    direction's one-hot times a matrix is a row lookup."""
+    that map's matrix, built from the conv's weights (with the image's scaling by 1/10 folded in):
+    measured 1.5-4x cheaper on CPU than the conv call at a rollout step's batch of 32
+    (tests/test_envs_maze.py checks both give the same features and gradients). Likewise the direction's
+    one-hot times the embedding is one small matmul of the one-hot with a 4-row table. Acting folds the
+    direction further, through the LSTM's input weights, into a table of its share of the gates."""
 
     def __init__(self, hidden_size: int = 256):
         super().__init__()
@@ -395,24 +400,41 @@ class MazeStudent(RecurrentCategoricalActorCritic):
         positions, weight_index = conv_matrix_indices(3, 16, VIEW_SIZE, 3)
         self.register_buffer("conv_positions", positions, persistent=False)
         self.register_buffer("conv_weight_index", weight_index, persistent=False)
-        self.acting_maps = DerivedWeights()  # input_maps, rebuilt only when the weights change
         self.conv_matrix_shape = (VIEW_SIZE * VIEW_SIZE * 3, 16 * (VIEW_SIZE - 2) ** 2)
 
     def input_maps(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The conv's matrix [75, 144], its bias per output (channel, y, x), and the direction's
-        embedding per direction [4, 5]."""
+        """The conv's matrix [75, 144] applied to the raw image (it includes the division by 10), its
+        bias per output (channel, y, x), and the direction's embedding per direction [4, 5]."""
         rows, columns = self.conv_matrix_shape
-        weight = self.conv.weight.reshape(-1).index_select(0, self.conv_weight_index)
+        weight = self.conv.weight.reshape(-1).index_select(0, self.conv_weight_index) / 10.0
         matrix = weight.new_zeros(rows * columns).scatter(0, self.conv_positions, weight).view(rows, columns)
         direction_table = self.direction_embed.weight.t() + self.direction_embed.bias
         return matrix, self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2), direction_table
 
     def features(self, obs: dict) -> torch.Tensor:
-        """[ReLU(conv(view)) flattened (144), direction embedding (5)] from the env's observation."""
+        """[ReLU(conv(view / 10)) flattened (144), direction embedding (5)] from the env's observation."""
         image = obs["image"]
-        matrix, bias, direction_table = self.input_maps() if torch.is_grad_enabled() else self.acting_maps.get([self.conv, self.direction_embed], self.input_maps)
-        view = torch.relu(torch.addmm(bias, image.reshape(len(image), len(matrix)).float() / 10.0, matrix))
-        return torch.cat([view, direction_table.index_select(0, obs["direction"].long())], dim=1)
+        matrix, bias, direction_table = self.input_maps()
+        view = torch.relu(torch.addmm(bias, image.reshape(len(image), len(matrix)).float(), matrix))
+        direction = nn.functional.one_hot(obs["direction"].long(), 4).to(view.dtype) @ direction_table
+        return torch.cat([view, direction], dim=1)
+
+    def acting_weights(self) -> dict[str, torch.Tensor]:
+        """The conv's matrix and bias, the LSTM input weights of the view's 144 features, and the
+        direction's share of the gates per direction (embedding x its LSTM input weights + the LSTM's
+        biases) [4, 4H]; the heads and recurrent weights as every recurrent net's."""
+        weights = super().acting_weights()
+        matrix, bias, direction_table = self.input_maps()
+        view_features = matrix.shape[1]
+        lstm_input = weights.pop("lstm_input")
+        direction_gates = torch.addmm(weights.pop("lstm_bias"), direction_table, lstm_input[view_features:])
+        return {**weights, "conv": matrix, "conv_bias": bias, "view_input": lstm_input[:view_features].contiguous(), "direction_gates": direction_gates}
+
+    def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
+        """W_ih x + b as the view's features times their input weights plus the direction's row."""
+        image = obs["image"]
+        view = torch.addmm(weights["conv_bias"], image.reshape(len(image), -1).float(), weights["conv"]).relu_()
+        return torch.addmm(weights["direction_gates"].index_select(0, obs["direction"].long()), view, weights["view_input"])
 
 
 class MazeTeacher(RecurrentCategoricalActorCritic):

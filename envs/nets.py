@@ -115,8 +115,9 @@ class ResettableLSTM(nn.Module):
     """An LSTM whose state is zeroed before every step marked `done` (the first step of an episode).
 
     `forward(x, state, done)` takes x [T * N, F], state (h, c) each [1, N, H] and done [T * N].
-    For T = 1 (acting in a rollout) it is one LSTM step and returns the new state. For T > 1 (training on
-    a whole rollout) the whole rollout is one fused `nn.LSTM` call: before each episode start after the
+    For T = 1 it is one step of torch's LSTM cell and returns the new state (a rollout acts through
+    `acting_step` instead, on weights derived once per parameter change). For T > 1 (training on a whole
+    rollout) the whole rollout is one fused `nn.LSTM` call: before each episode start after the
     first step a *reset step* is inserted into that copy's sequence, whose only input is an extra
     feature of 1 that drives the input and forget gates to exactly 0, so its cell and hidden state are
     0: the next step starts from a zero state as an episode start must. A copy's sequence grows by its
@@ -145,7 +146,6 @@ class ResettableLSTM(nn.Module):
         reset_weight = torch.zeros(4 * hidden_size, 1)
         reset_weight[: 2 * hidden_size] = -RESET_DRIVE
         self.register_buffer("reset_weight", reset_weight, persistent=False)
-        self.acting_weights = DerivedWeights()
 
     def initial_state(self, n: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
         zeros = torch.zeros(1, n, self.hidden_size, device=device)
@@ -154,39 +154,40 @@ class ResettableLSTM(nn.Module):
     def forward(self, x: torch.Tensor, state, done: torch.Tensor):
         num_copies = state[0].shape[1]
         steps = x.shape[0] // num_copies
+        lstm = self.lstm
         if steps == 1:
             keep = (1.0 - done.float()).view(num_copies, 1)
-            h, c = self._step(x, state[0][0] * keep, state[1][0] * keep)
+            h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
         if self.project_inputs_first:
-            lstm = self.lstm
             projected = nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0).view(steps, num_copies, -1)
             keep = (1.0 - done.float()).view(steps, num_copies, 1)
             h = MaskedLSTMRecurrence.apply(projected, lstm.weight_hh_l0, state[0][0], state[1][0], keep)
             return h.view(steps * num_copies, self.hidden_size), None
         return self._run_with_reset_steps(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
 
-    def _step(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """One LSTM step. With gradient: torch's fused cell. Without (acting in a rollout): the same
-        maths on cached transposed weights whose gate columns are reordered to i, f, o, g (the three
-        sigmoids side by side), in place: ~1.5x cheaper on CPU at a batch of 32 in a microbenchmark (5-10%
-        of a rollout step in the real loop, where every op's overhead is larger)."""
+    def acting_weights(self) -> dict[str, torch.Tensor]:
+        """For `acting_step`: W_ih^T, W_hh^T and b_ih + b_hh, their gate columns reordered to i, f, o, g
+        (the three sigmoids side by side)."""
         lstm = self.lstm
-        if torch.is_grad_enabled():
-            return torch.lstm_cell(x, (h, c), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
-        weight_ih_t, weight_hh_t, bias = self.acting_weights.get([lstm], self._acting_weights)
-        gates = torch.addmm(bias, x, weight_ih_t).addmm_(h, weight_hh_t)
+        order = torch.arange(4 * self.hidden_size, device=lstm.weight_ih_l0.device).view(4, -1)[[0, 1, 3, 2]].reshape(-1)
+        return {"lstm_input": lstm.weight_ih_l0[order].t().contiguous(), "lstm_recurrent": lstm.weight_hh_l0[order].t().contiguous(),
+                "lstm_bias": (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order]}
+
+    def acting_step(self, gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict) -> tuple[torch.Tensor, tuple]:
+        """One step without gradient (acting in a rollout), from the input's share of the gates,
+        `gate_inputs` = W_ih x + b_ih + b_hh [N, 4H] in the gate order of `acting_weights` (it is
+        overwritten). The same maths as torch's LSTM cell, in place: at a batch of 32 every op's
+        overhead counts."""
+        reset = done.view(-1, 1).bool()
+        h, c = state[0][0].masked_fill(reset, 0.0), state[1][0].masked_fill(reset, 0.0)
+        gates = gate_inputs.addmm_(h, weights["lstm_recurrent"])
         gates[:, : 3 * self.hidden_size].sigmoid_()
         gates[:, 3 * self.hidden_size :].tanh_()
         i, f, o, g = gates.chunk(4, 1)
         c = torch.addcmul(f * c, i, g)
-        return o * torch.tanh(c), c
-
-    def _acting_weights(self):
-        """W_ih^T, W_hh^T and b_ih + b_hh with the gates' columns in the order i, f, o, g."""
-        lstm = self.lstm
-        order = torch.arange(4 * self.hidden_size, device=lstm.weight_ih_l0.device).view(4, -1)[[0, 1, 3, 2]].reshape(-1)
-        return lstm.weight_ih_l0[order].t().contiguous(), lstm.weight_hh_l0[order].t().contiguous(), (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order]
+        h = o * torch.tanh(c)
+        return h, (h.unsqueeze(0), c.unsqueeze(0))
 
     def _run_with_reset_steps(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
         steps, num_copies, features = x.shape
@@ -218,13 +219,18 @@ class RecurrentCategoricalActorCritic(nn.Module):
     A subclass defines `self.lstm` (a ResettableLSTM), `self.actor` and `self.critic` (each
     Linear(hidden, 32), Tanh, Linear(32, out): `out` logits for the actor, 1 for the critic) and
     `features(obs)`, the LSTM's input [B, F].
+
+    Acting in a rollout (no gradient, no given action) runs on weights derived from the parameters once
+    per change of them (`acting_weights`): the LSTM's transposed weights and the two heads fused into
+    two matmuls. A subclass may derive more and override `acting_gate_inputs` (the maze student folds
+    its conv and direction embedding in).
     """
 
     is_recurrent = True  # PPO keeps each copy's rollout whole: minibatches are split over env copies
 
     def __init__(self):
         super().__init__()
-        self.acting_heads = DerivedWeights()
+        self.acting_cache = DerivedWeights()
 
     def initial_state(self, n: int, device=None):
         return self.lstm.initial_state(n, device)
@@ -247,12 +253,13 @@ class RecurrentCategoricalActorCritic(nn.Module):
 
     def get_action_and_value(self, obs: dict, state, done, action=None):
         """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
-        hidden, state = self._hidden(obs, state, done)
-        if torch.is_grad_enabled():
+        if torch.is_grad_enabled() or action is not None:
+            hidden, state = self._hidden(obs, state, done)
             logits, value = self.actor(hidden), self.critic(hidden).squeeze(-1)
-        else:  # acting: both heads as two matmuls of their fused weights (see _fused_heads)
-            first, first_bias, second, second_bias = self.acting_heads.get([self.actor, self.critic], self._fused_heads)
-            out = torch.addmm(second_bias, torch.addmm(first_bias, hidden, first).tanh_(), second)
+        else:  # acting: one step on the derived weights
+            weights = self.acting_cache.get([self], self.acting_weights)
+            hidden, state = self.lstm.acting_step(self.acting_gate_inputs(obs, weights), state, done, weights)
+            out = torch.addmm(weights["heads_bias"], torch.addmm(weights["hidden_bias"], hidden, weights["hidden"]).tanh_(), weights["heads"])
             logits, value = out[:, :-1], out[:, -1]
         log_probs = torch.log_softmax(logits, dim=-1)  # Categorical's maths, minus its overhead
         probs = log_probs.exp()
@@ -263,13 +270,18 @@ class RecurrentCategoricalActorCritic(nn.Module):
         logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
         return action, logprob, entropy, value, state
 
-    def _fused_heads(self):
-        """The actor's and critic's layers side by side: hidden -> [actor 32 | critic 32] in one matmul,
-        then a block-diagonal matrix -> [logits | value], so the zeros add nothing."""
+    def acting_weights(self) -> dict[str, torch.Tensor]:
+        """The LSTM's acting weights and the fused heads: the actor's and critic's first layers side by
+        side, hidden -> [actor 32 | critic 32] in one matmul, then a block-diagonal matrix -> [logits |
+        value] (its zeros add nothing)."""
         actor_in, actor_out, critic_in, critic_out = self.actor[0], self.actor[2], self.critic[0], self.critic[2]
-        first = torch.cat([actor_in.weight, critic_in.weight]).t().contiguous()
-        second = torch.block_diag(actor_out.weight, critic_out.weight).t().contiguous()
-        return first, torch.cat([actor_in.bias, critic_in.bias]), second, torch.cat([actor_out.bias, critic_out.bias])
+        return {**self.lstm.acting_weights(),
+                "hidden": torch.cat([actor_in.weight, critic_in.weight]).t().contiguous(), "hidden_bias": torch.cat([actor_in.bias, critic_in.bias]),
+                "heads": torch.block_diag(actor_out.weight, critic_out.weight).t().contiguous(), "heads_bias": torch.cat([actor_out.bias, critic_out.bias])}
+
+    def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
+        """The input's share of the LSTM's gates for a rollout step: W_ih x + b."""
+        return torch.addmm(weights["lstm_bias"], self.features(obs), weights["lstm_input"])
 
 
 class FeedForwardActorCritic(nn.Module):

@@ -72,24 +72,40 @@ def test_reset_steps_reset_exactly_with_large_weights_and_states():
     assert grad[:5, 0].abs().max() == 0 and grad[5:, 0].abs().max() > 0 and grad[:, 1:].abs().max() == 0
 
 
+class SmallNet(RecurrentCategoricalActorCritic):
+    def __init__(self):
+        super().__init__()
+        self.lstm = ResettableLSTM(5, 6)
+        self.actor = nn.Sequential(nn.Linear(6, 32), nn.Tanh(), nn.Linear(32, 3))
+        self.critic = nn.Sequential(nn.Linear(6, 32), nn.Tanh(), nn.Linear(32, 1))
+
+    def features(self, obs):
+        return obs["x"]
+
+
 def test_acting_step_equals_the_training_step():
-    """Without gradient a step runs on cached transposed weights; it computes torch's LSTM cell, and the
-    cache follows an optimizer step and a load_state_dict."""
+    """Without gradient a rollout step runs on derived weights (transposed LSTM weights in the gate order
+    i, f, o, g, fused heads); it computes what torch's LSTM cell and the heads compute, resets copy 1's
+    state, and the derived weights follow an optimizer step and a load_state_dict."""
     torch.manual_seed(7)
-    lstm = ResettableLSTM(5, 6)
-    x, done = torch.randn(4, 5), torch.tensor([0.0, 1.0, 0.0, 0.0])
+    net = SmallNet()
+    obs, done = {"x": torch.randn(4, 5)}, torch.tensor([False, True, False, False])
     state = (torch.randn(1, 4, 6), torch.randn(1, 4, 6))
-    optimizer = torch.optim.Adam(lstm.parameters(), lr=0.1)
+    optimizer = torch.optim.Adam(net.parameters(), lr=0.1)
     for change in ("none", "optimizer step", "load_state_dict"):
         if change == "optimizer step":
-            lstm(x, state, done)[0].sum().backward()
+            net.get_action_and_value(obs, state, done)[3].sum().backward()
             optimizer.step()
         elif change == "load_state_dict":
-            lstm.load_state_dict(ResettableLSTM(5, 6).state_dict())
-        out, (h, c) = lstm(x, state, done)
+            net.load_state_dict(SmallNet().state_dict())
+        torch.manual_seed(1)
+        action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, done)
         with torch.no_grad():
-            acting_out, (acting_h, acting_c) = lstm(x, state, done)
-        assert torch.allclose(acting_out, out, atol=1e-6) and torch.allclose(acting_c, c, atol=1e-6)
+            torch.manual_seed(1)
+            acting = net.get_action_and_value(obs, state, done)
+        assert torch.equal(acting[0], action)
+        for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
+            assert torch.allclose(got, expected, atol=1e-6)
 
 
 def test_reset_zeroes_state():

@@ -54,6 +54,15 @@ def test_recurrent_minibatches_hold_whole_rollouts_time_major():
     assert sorted(torch.cat(batches).tolist()) == list(range(12))
 
 
+def test_a_single_minibatch_is_the_whole_batch_as_a_view():
+    storage = torch.arange(24.0).view(4, 3, 2)  # [T, N, features]
+    for batches in (list(plr.minibatch_rows(True, plr.Args(num_envs=3, num_steps=4, num_minibatches=1), "cpu")),
+                    list(paired.minibatch_rows(False, num_steps=4, n=3, num_minibatches=1, device="cpu"))):
+        assert len(batches) == 1
+        flat = storage.reshape(12, 2)[batches[0]]
+        assert torch.equal(flat, storage.reshape(12, 2)) and flat.data_ptr() == storage.data_ptr()
+
+
 def test_value_losses_on_a_worked_example():
     value, old, ret = torch.tensor([1.0, 0.0]), torch.tensor([0.5, 0.0]), torch.tensor([0.0, 3.0])
     args = plr.Args(clip_coef=0.2, value_loss="mse")
