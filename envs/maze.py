@@ -434,7 +434,7 @@ class MazeStudent(RecurrentCategoricalActorCritic):
         """W_ih x + b as the view's features times their input weights plus the direction's row."""
         image = obs["image"]
         view = torch.addmm(weights["conv_bias"], image.reshape(len(image), -1).float(), weights["conv"]).relu_()
-        return torch.addmm(weights["direction_gates"].index_select(0, obs["direction"].long()), view, weights["view_input"])
+        return weights["direction_gates"].index_select(0, obs["direction"].long()).addmm_(view, weights["view_input"])
 
 
 class MazeTeacher(RecurrentCategoricalActorCritic):

@@ -180,7 +180,9 @@ class ResettableLSTM(nn.Module):
         overwritten). The same maths as torch's LSTM cell, in place: at a batch of 32 every op's
         overhead counts."""
         reset = done.view(-1, 1).bool()
-        h, c = state[0][0].masked_fill(reset, 0.0), state[1][0].masked_fill(reset, 0.0)
+        h, c = state[0][0], state[1][0]
+        if reset.any():  # zero the state of the copies whose episode starts (at most steps, none does)
+            h, c = h.masked_fill(reset, 0.0), c.masked_fill(reset, 0.0)
         gates = gate_inputs.addmm_(h, weights["lstm_recurrent"])
         gates[:, : 3 * self.hidden_size].sigmoid_()
         gates[:, 3 * self.hidden_size :].tanh_()
@@ -202,7 +204,7 @@ class ResettableLSTM(nn.Module):
         reset_rows = ((position - 1) * num_copies + copy)[resets]
         # Rows are placed with index_copy (its backward is an index_select) and read back with
         # index_select (its backward an index_add): ~5x cheaper on CPU than indexing's accumulate.
-        placed = x.new_zeros(length * num_copies, features).index_copy(0, rows, x.reshape(steps * num_copies, features))
+        placed = x.new_zeros(length * num_copies, features).index_copy_(0, rows, x.reshape(steps * num_copies, features))
         reset_input = x.new_zeros(length * num_copies, 1).index_fill_(0, reset_rows, 1.0)
         inputs = torch.cat([placed, reset_input], 1).view(length, num_copies, features + 1)
         keep = (~done[0]).to(x.dtype).view(1, num_copies, 1)

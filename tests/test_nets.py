@@ -85,8 +85,8 @@ class SmallNet(RecurrentCategoricalActorCritic):
 
 def test_acting_step_equals_the_training_step():
     """Without gradient a rollout step runs on derived weights (transposed LSTM weights in the gate order
-    i, f, o, g, fused heads); it computes what torch's LSTM cell and the heads compute, resets copy 1's
-    state, and the derived weights follow an optimizer step and a load_state_dict."""
+    i, f, o, g, fused heads); it computes what torch's LSTM cell and the heads compute, with and
+    without copy 1's state reset, and the derived weights follow an optimizer step and a load_state_dict."""
     torch.manual_seed(7)
     net = SmallNet()
     obs, done = {"x": torch.randn(4, 5)}, torch.tensor([False, True, False, False])
@@ -98,14 +98,15 @@ def test_acting_step_equals_the_training_step():
             optimizer.step()
         elif change == "load_state_dict":
             net.load_state_dict(SmallNet().state_dict())
-        torch.manual_seed(1)
-        action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, done)
-        with torch.no_grad():
+        for starts in (done, torch.zeros(4, dtype=torch.bool)):
             torch.manual_seed(1)
-            acting = net.get_action_and_value(obs, state, done)
-        assert torch.equal(acting[0], action)
-        for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
-            assert torch.allclose(got, expected, atol=1e-6)
+            action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, starts)
+            with torch.no_grad():
+                torch.manual_seed(1)
+                acting = net.get_action_and_value(obs, state, starts)
+            assert torch.equal(acting[0], action)
+            for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
+                assert torch.allclose(got, expected, atol=1e-6)
 
 
 def test_reset_zeroes_state():
