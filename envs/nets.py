@@ -222,9 +222,9 @@ class RecurrentCategoricalActorCritic(nn.Module):
     Linear(hidden, 32), Tanh, Linear(32, out): `out` logits for the actor, 1 for the critic) and
     `features(obs)`, the LSTM's input [B, F].
 
-    Acting in a rollout (no gradient, no given action) runs on weights derived from the parameters once
-    per change of them (`acting_weights`): the LSTM's transposed weights and the two heads fused into
-    two matmuls. A subclass may derive more and override `acting_gate_inputs` (the maze student folds
+    The actor and critic run as two fused matmuls (`fused_heads`). Acting in a rollout (no gradient, no
+    given action) runs on weights derived from the parameters once per change of them
+    (`acting_weights`): the LSTM's transposed weights and the fused heads. A subclass may derive more and override `acting_gate_inputs` (the maze student folds
     its conv and direction embedding in).
     """
 
@@ -257,12 +257,14 @@ class RecurrentCategoricalActorCritic(nn.Module):
         """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
         if torch.is_grad_enabled() or action is not None:
             hidden, state = self._hidden(obs, state, done)
-            logits, value = self.actor(hidden), self.critic(hidden).squeeze(-1)
+            heads = self.fused_heads()
         else:  # acting: one step on the derived weights
             weights = self.acting_cache.get([self], self.acting_weights)
             hidden, state = self.lstm.acting_step(self.acting_gate_inputs(obs, weights), state, done, weights)
-            out = torch.addmm(weights["heads_bias"], torch.addmm(weights["hidden_bias"], hidden, weights["hidden"]).tanh_(), weights["heads"])
-            logits, value = out[:, :-1], out[:, -1]
+            heads = weights["heads"]
+        first, first_bias, second, second_bias = heads
+        out = torch.addmm(second_bias, torch.addmm(first_bias, hidden, first).tanh_(), second)
+        logits, value = out[:, :-1], out[:, -1]
         log_probs = torch.log_softmax(logits, dim=-1)  # Categorical's maths, minus its overhead
         probs = log_probs.exp()
         if action is None:  # inverse-CDF sampling: ~2x cheaper per call on CPU than torch.multinomial
@@ -272,14 +274,17 @@ class RecurrentCategoricalActorCritic(nn.Module):
         logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
         return action, logprob, entropy, value, state
 
-    def acting_weights(self) -> dict[str, torch.Tensor]:
-        """The LSTM's acting weights and the fused heads: the actor's and critic's first layers side by
-        side, hidden -> [actor 32 | critic 32] in one matmul, then a block-diagonal matrix -> [logits |
-        value] (its zeros add nothing)."""
+    def fused_heads(self) -> tuple[torch.Tensor, ...]:
+        """The actor and critic as two matmuls: their first layers side by side, hidden -> [actor 32 |
+        critic 32], then a block-diagonal matrix -> [logits | value] (its zeros add nothing). Returns
+        the first weight [H, 64] and bias, the second weight [64, out + 1] and bias."""
         actor_in, actor_out, critic_in, critic_out = self.actor[0], self.actor[2], self.critic[0], self.critic[2]
-        return {**self.lstm.acting_weights(),
-                "hidden": torch.cat([actor_in.weight, critic_in.weight]).t().contiguous(), "hidden_bias": torch.cat([actor_in.bias, critic_in.bias]),
-                "heads": torch.block_diag(actor_out.weight, critic_out.weight).t().contiguous(), "heads_bias": torch.cat([actor_out.bias, critic_out.bias])}
+        return (torch.cat([actor_in.weight, critic_in.weight]).t(), torch.cat([actor_in.bias, critic_in.bias]),
+                torch.block_diag(actor_out.weight, critic_out.weight).t(), torch.cat([actor_out.bias, critic_out.bias]))
+
+    def acting_weights(self) -> dict[str, torch.Tensor]:
+        """The LSTM's acting weights and the fused heads, laid out for acting's matmuls."""
+        return {**self.lstm.acting_weights(), "heads": tuple(weight.contiguous() for weight in self.fused_heads())}
 
     def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
         """The input's share of the LSTM's gates for a rollout step: W_ih x + b."""

@@ -109,6 +109,26 @@ def test_acting_step_equals_the_training_step():
                 assert torch.allclose(got, expected, atol=1e-6)
 
 
+def test_fused_heads_equal_the_actor_and_critic_modules():
+    """get_action_and_value runs the heads as two fused matmuls; its log-probabilities, entropies, values
+    and their gradients equal those of the actor and critic modules (what dist_and_value uses)."""
+    torch.manual_seed(8)
+    net = SmallNet()
+    obs, done = {"x": torch.randn(6, 5)}, torch.zeros(6)
+    state, action = net.initial_state(6), torch.tensor([0, 1, 2, 2, 1, 0])
+    _, logprob, entropy, value, _ = net.get_action_and_value(obs, state, done, action)
+    dist, module_value = net.dist_and_value(obs, state, done)
+    expected = (dist.log_prob(action), dist.entropy(), module_value)
+    for got, want in zip((logprob, entropy, value), expected):
+        assert torch.allclose(got, want, atol=1e-6)
+    weights = torch.randn(3, 6)
+    params = list(net.actor.parameters()) + list(net.critic.parameters())
+    got = torch.autograd.grad(sum((w * x).sum() for w, x in zip(weights, (logprob, entropy, value))), params)
+    want = torch.autograd.grad(sum((w * x).sum() for w, x in zip(weights, expected)), params)
+    for a, b in zip(got, want):
+        assert torch.allclose(a, b, atol=1e-6)
+
+
 def test_reset_zeroes_state():
     torch.manual_seed(2)
     lstm = ResettableLSTM(3, 4)
