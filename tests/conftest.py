@@ -17,3 +17,16 @@ def shared_f1_track_file() -> str:
     candidates = [os.environ.get("CLEANUED_F1_TRACKS", ""), os.path.join(root, "..", "shared", "data", "f1_tracks.npz"),
                   "/work/shared/data/f1_tracks.npz"]
     return next((path for path in candidates if path and os.path.isfile(path)), candidates[1])
+
+
+def assert_acting_equals_training(net, obs: dict, state, done, atol: float) -> None:
+    """A recurrent net's acting step (no gradient, derived weights) gives the training path's action for
+    the same random draw and its log-probability, entropy, value and new state."""
+    torch.manual_seed(1)
+    action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, done)
+    with torch.no_grad():
+        torch.manual_seed(1)
+        acting = net.get_action_and_value(obs, state, done)
+    assert torch.equal(acting[0], action)
+    for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
+        assert torch.allclose(got, expected, atol=atol)

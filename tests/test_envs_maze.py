@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import assert_acting_equals_training
+
 import envs
 from envs.maze import (
     NOISE_DIM,
@@ -826,9 +828,10 @@ def test_student_view_features_equal_the_conv_they_replace():
 
 
 def test_student_acting_without_gradient_equals_the_training_path():
-    # Acting (no gradient) uses cached derived weights: the conv's matrix, the LSTM's transposed weights
-    # and the fused actor-critic heads. Same action stream, log-probabilities, values and state as the
-    # training path, before and after an optimizer step changes the weights.
+    # Acting (no gradient) uses cached derived weights: the conv's matrix, the direction's table of gate
+    # inputs, the LSTM's transposed weights and the fused actor-critic heads. Same action stream,
+    # log-probabilities, values and state as the training path, before and after an optimizer step
+    # changes the weights.
     torch.manual_seed(0)
     net = MazeStudent()
     env = MazeEnv("maze", 8, seed=0)
@@ -837,14 +840,8 @@ def test_student_acting_without_gradient_equals_the_training_path():
     done = torch.tensor([1.0, 0, 0, 1, 0, 0, 0, 0])
     optimizer = torch.optim.Adam(net.parameters(), lr=0.01)
     for _ in range(2):
-        torch.manual_seed(1)
-        action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, done)
-        with torch.no_grad():
-            torch.manual_seed(1)
-            acting = net.get_action_and_value(obs, state, done)
-        assert torch.equal(acting[0], action)
-        for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
-            assert torch.allclose(got, expected, atol=1e-5)
+        assert_acting_equals_training(net, obs, state, done, atol=1e-5)
+        _, logprob, _, value, _ = net.get_action_and_value(obs, state, done)
         (value.square().sum() - logprob.sum()).backward()
         optimizer.step()
 

@@ -4,6 +4,7 @@ import pytest
 import torch
 from torch import nn
 
+from conftest import assert_acting_equals_training
 from envs.nets import MaskedLSTMRecurrence, RecurrentCategoricalActorCritic, ResettableLSTM
 
 
@@ -99,14 +100,7 @@ def test_acting_step_equals_the_training_step():
         elif change == "load_state_dict":
             net.load_state_dict(SmallNet().state_dict())
         for starts in (done, torch.zeros(4, dtype=torch.bool)):
-            torch.manual_seed(1)
-            action, logprob, entropy, value, (h, c) = net.get_action_and_value(obs, state, starts)
-            with torch.no_grad():
-                torch.manual_seed(1)
-                acting = net.get_action_and_value(obs, state, starts)
-            assert torch.equal(acting[0], action)
-            for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
-                assert torch.allclose(got, expected, atol=1e-6)
+            assert_acting_equals_training(net, obs, state, starts, atol=1e-6)
 
 
 def test_fused_heads_equal_the_actor_and_critic_modules():
