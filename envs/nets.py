@@ -181,7 +181,7 @@ class ResettableLSTM(nn.Module):
         overhead counts."""
         reset = done.view(-1, 1).bool()
         h, c = state[0][0], state[1][0]
-        if reset.any():  # zero the state of the copies whose episode starts (at most steps, none does)
+        if reset.any():  # zero the state of copies whose episode starts (most steps have none)
             h, c = h.masked_fill(reset, 0.0), c.masked_fill(reset, 0.0)
         gates = gate_inputs.addmm_(h, weights["lstm_recurrent"])
         gates[:, : 3 * self.hidden_size].sigmoid_()
@@ -224,8 +224,8 @@ class RecurrentCategoricalActorCritic(nn.Module):
 
     The actor and critic run as two fused matmuls (`fused_heads`). Acting in a rollout (no gradient, no
     given action) runs on weights derived from the parameters once per change of them
-    (`acting_weights`): the LSTM's transposed weights and the fused heads. A subclass may derive more and override `acting_gate_inputs` (the maze student folds
-    its conv and direction embedding in).
+    (`acting_weights`): the LSTM's transposed weights and the fused heads. A subclass may derive more
+    and override `acting_gate_inputs` (the maze student folds its conv and direction embedding in).
     """
 
     is_recurrent = True  # PPO keeps each copy's rollout whole: minibatches are split over env copies
