@@ -53,8 +53,11 @@ class Args:
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
 
     # PPO (SPEC 4; None = the paper's value for --env)
+    gradient_updates: Optional[int] = None
+    """PPO updates to train for, one per replay; 0 for no limit (paper: maze 20k, about 370M env steps)"""
     total_timesteps: Optional[int] = None
-    """env steps to simulate in all: training, scoring and edit evaluation (paper: 20k updates, ~400M)"""
+    """env steps to simulate in all (training, scoring and edit evaluation); 0 for no limit. The run stops
+    at whichever budget it reaches first (paper: maze no step limit, carracing 5.5M, walker 960M)"""
     num_envs: Optional[int] = None
     """parallel env copies, one level each per update (paper: maze 32, carracing and walker 16)"""
     num_steps: Optional[int] = None
@@ -74,7 +77,7 @@ class Args:
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
     normalize_returns: Optional[bool] = None
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
@@ -121,16 +124,16 @@ class Args:
 # ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
 # replay rate and staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
-    "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
+    "maze": dict(gradient_updates=20_000, total_timesteps=0, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
                  gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, value_loss="clipped",
                  normalize_returns=False, replay_prob=0.8, level_buffer_size=4000, temperature=0.3,
                  staleness_coef=0.5, num_edits=5, generator="random", eval_episodes=100),
-    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+    "carracing": dict(gradient_updates=0, total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, ent_coef=0.0, value_loss="huber",
                       normalize_returns=True, replay_prob=0.8, level_buffer_size=10000, temperature=0.3,
                       staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
-    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="mse",
+    "walker": dict(gradient_updates=0, total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="huber",
                    normalize_returns=True, replay_prob=0.9, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
@@ -179,7 +182,9 @@ def resolve_args(args: Args) -> Args:
         fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
     if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
         fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+    if min(args.gradient_updates, args.total_timesteps) < 0 or max(args.gradient_updates, args.total_timesteps) == 0:
+        fail("--gradient-updates and --total-timesteps must be >= 0, and one of them positive")
+    if min(args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
@@ -204,23 +209,28 @@ def check_track_file(args: Args) -> None:
 # ---------------------------------------------------------------------------------------------------
 # Prioritized level replay: the buffer, its replay distribution and its score (SPEC 4, eq. 2).
 # ---------------------------------------------------------------------------------------------------
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor) -> torch.Tensor:
-    """Score per env copy (eq. 2): the mean over its episodes in the rollout of the mean over the
-    episode's steps of max(GAE advantage, 0). advantages, dones [T, N]; dones[t] marks an episode start
-    at step t. The last, unfinished episode counts as an episode too."""
+def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+    """Score per env copy (eq. 2): the mean over the rollout's completed episodes of the mean over each
+    episode's steps of max(GAE advantage, 0). advantages, dones [T, N], dones[t] marking an episode
+    start at step t; final_dones [N] marks an episode that ended at the rollout's last step.
+    An episode cut off by the rollout's end is not scored, as in the reference implementations (dcd,
+    JaxUED): after a failed 250-step episode, a 6-step piece would otherwise weigh as much as it. A copy
+    that completed no episode (one episode spans its whole rollout) is scored on that episode."""
     steps, n = advantages.shape
     starts = dones.bool().clone()
     starts[0] = True
+    ends = torch.cat([starts[1:], final_dones.bool().unsqueeze(0)])  # step t is its episode's last
     episode = torch.cumsum(starts.t().reshape(-1).long(), 0) - 1  # copy-major episode ids
     num_episodes = int(episode[-1]) + 1
+    per_episode = lambda values: torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, values)  # noqa: E731
     positive = advantages.clamp(min=0).t().reshape(-1)
-    sums = torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, positive)
-    lengths = torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, torch.ones_like(positive))
+    episode_scores = per_episode(positive) / per_episode(torch.ones_like(positive))
+    completed = per_episode(ends.t().reshape(-1).float()) > 0
     copy_of_episode = torch.zeros(num_episodes, dtype=torch.long, device=advantages.device)
     copy_of_episode[episode] = torch.arange(n, device=advantages.device).repeat_interleave(steps)
-    per_copy = torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, sums / lengths)
-    episodes_per_copy = torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, torch.ones(num_episodes, device=advantages.device))
-    return per_copy / episodes_per_copy
+    per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
+    scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
+    return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -329,6 +339,7 @@ class Rollout:
         self.logprobs = torch.zeros(num_steps, num_envs, device=device)
         self.rewards = torch.zeros(num_steps, num_envs, device=device)
         self.dones = torch.zeros(num_steps, num_envs, device=device)  # 1 where an episode starts at step t
+        self.final_dones = torch.zeros(num_envs, device=device)  # 1 where the last step ended an episode
         self.values = torch.zeros(num_steps, num_envs, device=device)
 
 
@@ -404,6 +415,7 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     torch.stack(values, out=storage.values)
     storage.rewards.copy_(torch.from_numpy(rewards))
     storage.dones.copy_(torch.from_numpy(starts))
+    storage.final_dones.copy_(torch.from_numpy(ended))
     # GAE (in numpy: 256 small steps are cheaper there than as tensor ops).
     value = storage.values.cpu().numpy()
     next_nonterminal = 1.0 - np.concatenate([starts[1:], ended[None]]).astype(np.float32)
@@ -438,7 +450,7 @@ def minibatch_rows(recurrent: bool, args: Args, device):
 
 
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
-    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
         clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
         return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
@@ -484,7 +496,7 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Ar
 def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics (and their change from
     parent to child) among them."""
-    return ["update", "env_steps", "sps", "replay", "mean_return", "solved_rate", "episodes",
+    return ["update", "env_steps", "gradient_updates", "sps", "replay", "mean_return", "solved_rate", "episodes",
             "buffer_size", "buffer_mean_score", "mean_score", *env.level_metric_names,
             "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
@@ -515,7 +527,12 @@ if __name__ == "__main__":
     storage = Rollout(env, args.num_steps, args.num_envs, device)
     normalizer = ReturnNormalizer(args.num_envs, args.gamma) if args.normalize_returns else None
     metrics = metric_names(env)
-    start_update, global_step, elapsed = 1, 0, 0.0
+    start_update, global_step, gradient_updates, elapsed = 1, 0, 0, 0.0
+
+    def budget_used() -> float:
+        """The share of the run's budget spent: the larger of the steps' and the gradient updates' shares."""
+        return max(global_step / args.total_timesteps if args.total_timesteps else 0.0,
+                   gradient_updates / args.gradient_updates if args.gradient_updates else 0.0)
 
     if args.resume:
         run_dir = args.resume
@@ -530,13 +547,14 @@ if __name__ == "__main__":
         np.random.set_state(checkpoint["numpy_global"])
         torch.set_rng_state(checkpoint["torch"])
         start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
+        gradient_updates = checkpoint["gradient_updates"]
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=metrics)
             writer.writeheader()
             writer.writerows(kept)
-        print(f"resuming {run_dir} at update {start_update}, step {global_step}/{args.total_timesteps}")
+        print(f"resuming {run_dir} at update {start_update}, step {global_step}, gradient update {gradient_updates}")
     else:
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
@@ -548,13 +566,14 @@ if __name__ == "__main__":
         import wandb
 
         wandb.init(project=args.wandb_project_name, name=os.path.basename(run_dir), config=dataclasses.asdict(args), resume="allow")
-    print(f"ACCEL on {args.env}: {args.total_timesteps} env steps, {batch_size} per rollout, device {device}, run {run_dir}")
+    budget = " or ".join(f"{limit} {unit}" for limit, unit in ((args.gradient_updates, "gradient updates"), (args.total_timesteps, "env steps")) if limit)
+    print(f"ACCEL on {args.env}: {budget}, {batch_size} steps per rollout, device {device}, run {run_dir}")
 
     metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
     metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
     window_start, window_steps = time.time(), 0
     update = start_update - 1
-    while global_step < args.total_timesteps:
+    while budget_used() < 1.0:
         update += 1
         update_start = time.time()
         replay = decide_replay(len(buffer), args, level_rng)
@@ -567,11 +586,12 @@ if __name__ == "__main__":
         # Robust PLR: train on replayed levels only; new levels are played and scored.
         agent.eval()
         advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device, normalizer)
-        scores = positive_value_loss(advantages, storage.dones).cpu().numpy()
+        scores = positive_value_loss(advantages, storage.dones, storage.final_dones).cpu().numpy()
         stats, edit_stats = {}, {}
         if replay:
             agent.train()
             stats = ppo_update(agent, optimizer, storage, advantages, returns, args, update, device)
+            gradient_updates += 1
             buffer.update_scores(replay_index, scores)
             # ACCEL's editing: mutate copies of replayed levels, play them without gradient, score them
             # and offer them to the buffer.
@@ -579,7 +599,7 @@ if __name__ == "__main__":
             children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
             agent.eval()
             child_advantages, _, _ = collect_rollout(agent, env, children, storage, args, device, normalizer)
-            child_scores = positive_value_loss(child_advantages, storage.dones).cpu().numpy()
+            child_scores = positive_value_loss(child_advantages, storage.dones, storage.final_dones).cpu().numpy()
             entered = buffer.insert(children, child_scores, update)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
             edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
@@ -593,13 +613,13 @@ if __name__ == "__main__":
         elapsed += time.time() - update_start
 
         level_stats = env.level_metrics(levels)
-        row = {"update": update, "env_steps": global_step, "sps": round(global_step / elapsed), "replay": int(replay),
+        row = {"update": update, "env_steps": global_step, "gradient_updates": gradient_updates, "sps": round(global_step / elapsed), "replay": int(replay),
                "mean_return": np.mean(episode_returns) if episode_returns else 0.0,
                "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else 0.0,
                "episodes": len(episode_returns), "buffer_size": len(buffer),
                "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()}, **stats, **edit_stats}
-        last_update = global_step >= args.total_timesteps
+        last_update = budget_used() >= 1.0
         if update % args.eval_interval == 0 or last_update:
             agent.eval()
             validation = evaluate_all(agent, args.env, env.validation_levels, args.eval_episodes, args.seed, device)
@@ -613,10 +633,11 @@ if __name__ == "__main__":
 
         if update % args.log_interval == 0:
             window_sps = window_steps / (time.time() - window_start)
-            eta = max(args.total_timesteps - global_step, 0) * elapsed / global_step
+            used = budget_used()  # 0 while a gradient-update budget has seen no replay yet
+            eta = f"{elapsed * (1.0 - used) / used / 60:.1f} min" if used > 0 else "unknown"
             print(f"update {update} | steps {global_step} | {window_sps:.0f} steps/s | return {row['mean_return']:.3f} "
                   f"| solved {row['solved_rate']:.2f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} "
-                  f"| children in {edit_stats.get('children_entered', 0)} | ETA {eta / 60:.1f} min")
+                  f"| children in {edit_stats.get('children_entered', 0)} | ETA {eta}")
             window_start, window_steps = time.time(), 0
         if len(buffer) and (update % args.levels_interval == 0 or last_update):
             top = np.argsort(-buffer.scores)[:32]
@@ -626,8 +647,8 @@ if __name__ == "__main__":
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),
                 "rng": rng_state({"level": level_rng, "env": env.rng}), "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed,
-                "normalizer": None if normalizer is None else normalizer.state_dict()})
+                "torch": torch.get_rng_state(), "update": update, "global_step": global_step,
+                "gradient_updates": gradient_updates, "elapsed": elapsed, "normalizer": None if normalizer is None else normalizer.state_dict()})
     metrics_file.close()
     env.close()
 

@@ -82,6 +82,10 @@ class Args:
     """the KL term is added on every K-th update only (BC: 5 for maze, 25 for maze25, 10 for carracing and walker)"""
     bidirectional: bool = False
     """BiBC: the antagonist also clones the protagonist (default: UniBC, protagonist only)"""
+    teacher_update_epochs: Optional[int] = None
+    """PPO epochs per update of the teacher (paper: as the students, walker 8)"""
+    teacher_num_minibatches: Optional[int] = None
+    """minibatches per epoch of the teacher, of whole level designs for an LSTM teacher (paper: maze 1, carracing and walker 4)"""
     teacher_conv_channels: Optional[int] = None
     """maze: channels of the teacher's conv layer (paper: 128; fewer make a lighter, faster teacher)"""
     normalize_teacher_returns: Optional[bool] = None
@@ -89,7 +93,7 @@ class Args:
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
     normalize_returns: Optional[bool] = None
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
@@ -116,14 +120,14 @@ class Args:
 # walker BC row: the walker takes its combined setting's BC values (Appendix C).
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.005, teacher_ent_coef=0.005,
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.005, teacher_update_epochs=5, teacher_num_minibatches=1, teacher_ent_coef=0.005,
                  value_loss="clipped", normalize_returns=False, normalize_teacher_returns=False, eval_episodes=100, kl_coef=0.01, kl_interval=5),
     "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
-                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.005, teacher_ent_coef=0.05,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.005, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.05,
                       value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=10, kl_coef=0.5, kl_interval=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_ent_coef=0.01,
-                   value_loss="mse", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100, kl_coef=0.1, kl_interval=10),
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.01,
+                   value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100, kl_coef=0.1, kl_interval=10),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"], teacher_ent_coef=0.05, kl_coef=0.1, kl_interval=25)
 
@@ -157,6 +161,10 @@ def resolve_args(args: Args) -> Args:
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
     recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
+    if min(args.teacher_update_epochs, args.teacher_num_minibatches) <= 0:
+        fail("--teacher-update-epochs and --teacher-num-minibatches must be positive")
+    if recurrent and args.num_envs % args.teacher_num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --teacher-num-minibatches {args.teacher_num_minibatches}")
     if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
@@ -317,7 +325,7 @@ def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int
 
 
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
-    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
         clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
         return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
@@ -326,15 +334,15 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     return 0.5 * ((value - ret) ** 2).mean()
 
 
-def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, args: Args, update: int, device,
-               clone_target=None, kl_coef: float = 0.0) -> dict:
+def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, update_epochs: int, num_minibatches: int,
+               args: Args, update: int, device, clone_target=None, kl_coef: float = 0.0) -> dict:
     """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
     every minibatch loss adds kl_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
     num_steps, n = storage.rewards.shape
-    state = agent.initial_state(n // args.num_minibatches, device)  # every rollout starts from a fresh state
+    state = agent.initial_state(n // num_minibatches, device)  # every rollout starts from a fresh state
     stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "kl": 0.0}
-    for _ in range(args.update_epochs):
-        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
+    for _ in range(update_epochs):
+        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
             flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             dist, value = agent.dist_and_value(obs, state, flat(storage.dones))
@@ -361,7 +369,7 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
                 stats["value_loss"] += value_loss.item()
                 stats["entropy"] += entropy.mean().item()
                 stats["approx_kl"] += ((ratio - 1) - ratio.log()).mean().item()
-    return {k: v / (args.update_epochs * args.num_minibatches) for k, v in stats.items()}
+    return {k: v / (update_epochs * num_minibatches) for k, v in stats.items()}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -482,7 +490,8 @@ if __name__ == "__main__":
         for agent in agents.values():
             agent.eval()
         # Algorithm 1, line 3: the teacher generates the levels.
-        levels = teacher_rollout(teacher, mdp, teacher_storage, args, device)
+        # Both students play each level from the same start (the maze draws its start direction here).
+        levels = env.draw_starts(teacher_rollout(teacher, mdp, teacher_storage, args, device))
         time_teacher_rollout = time.time() - update_start
 
         # Lines 4-7: each student collects a rollout on every level and trains by PPO; on every K-th
@@ -497,7 +506,8 @@ if __name__ == "__main__":
             times["rollouts"] += time.time() - start
             start = time.time()
             agents[name].train()
-            stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef, args, update, device,
+            stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,
+                                     args.update_epochs, args.num_minibatches, args, update, device,
                                      clone_target=clone_targets[name], kl_coef=args.kl_coef)
             times["updates"] += time.time() - start
 
@@ -512,7 +522,8 @@ if __name__ == "__main__":
         with torch.no_grad():
             advantages, returns = gae(teacher_storage, torch.zeros(args.num_envs, device=device), torch.ones(args.num_envs, device=device), args.gamma, args.gae_lambda)
         teacher.train()
-        stats["teacher"] = ppo_update(teacher, optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef, args, update, device)
+        stats["teacher"] = ppo_update(teacher, optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef,
+                                      args.teacher_update_epochs, args.teacher_num_minibatches, args, update, device)
         time_teacher_update = time.time() - start
         global_step += batch_size
         elapsed += time.time() - update_start

@@ -85,7 +85,7 @@ class Args:
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
     normalize_returns: Optional[bool] = None
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
@@ -141,7 +141,7 @@ PAPER_DEFAULTS = {
                       normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=10000, temperature=0.3,
                       staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="mse",
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="huber",
                    normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
@@ -457,7 +457,7 @@ def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int
 
 
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
-    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
         clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
         return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
@@ -598,13 +598,14 @@ if __name__ == "__main__":
             # update the protagonist (and with BiBC the antagonist) adds the cloning term (eq. 1).
             replay_index = buffer.sample(args.num_envs, update, level_rng)
             levels = buffer.levels[replay_index]
+            played = env.draw_starts(levels)  # both students start each level alike (the maze's direction)
             gradient_updates += 1
             cloning_update = args.kl_coef > 0 and gradient_updates % args.kl_interval == 0
             clone_targets = {"protagonist": antagonist if cloning_update else None,
                              "antagonist": protagonist if cloning_update and args.bidirectional else None}
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                advantages, returns, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
+                advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
                 students[name].train()
                 stats[name] = ppo_update(students[name], optimizers[name], storage, advantages, returns, args.student_ent_coef, args,
                                          update, device, clone_target=clone_targets[name], kl_coef=args.kl_coef)
@@ -616,10 +617,10 @@ if __name__ == "__main__":
             # gradient, score them by regret and offer them to the buffer.
             parents = select_parents(scores, args.edit_levels)
             children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
-            child_returns = {}
+            child_returns, played_children = {}, env.draw_starts(children)
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, child_returns[name] = student_rollout(students[name], env, children, storage, args, device, normalizers.get(name))
+                _, _, child_returns[name] = student_rollout(students[name], env, played_children, storage, args, device, normalizers.get(name))
             child_scores = score_levels(child_returns["protagonist"], child_returns["antagonist"])
             entered = buffer.insert(children, child_scores, update)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
@@ -629,9 +630,10 @@ if __name__ == "__main__":
         else:
             # Lines 5-10: random levels, played by both students without gradient, scored by regret.
             levels = env.level_generators[args.generator](args.num_envs, level_rng)
+            played = env.draw_starts(levels)
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
+                _, _, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
             scores = score_levels(returns_of["protagonist"], returns_of["antagonist"])
             buffer.insert(levels, scores, update)
             steps_this_update = batch_size

@@ -79,7 +79,7 @@ class Args:
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped, carracing huber, walker mse)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
     normalize_returns: Optional[bool] = None
     """divide rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
@@ -128,7 +128,7 @@ PAPER_DEFAULTS = {
                       normalize_returns=True, replay_prob=0.5, level_buffer_size=10000, temperature=0.3,
                       staleness_coef=0.3, eval_episodes=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="mse",
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="huber",
                    normalize_returns=True, replay_prob=0.5, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, eval_episodes=100),
 }
@@ -197,23 +197,28 @@ def check_track_file(args: Args) -> None:
 # ---------------------------------------------------------------------------------------------------
 # Prioritized level replay: the buffer, its replay distribution and its score (SPEC 4, eq. 2).
 # ---------------------------------------------------------------------------------------------------
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor) -> torch.Tensor:
-    """Score per env copy (eq. 2): the mean over its episodes in the rollout of the mean over the
-    episode's steps of max(GAE advantage, 0). advantages, dones [T, N]; dones[t] marks an episode start
-    at step t. The last, unfinished episode counts as an episode too."""
+def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+    """Score per env copy (eq. 2): the mean over the rollout's completed episodes of the mean over each
+    episode's steps of max(GAE advantage, 0). advantages, dones [T, N], dones[t] marking an episode
+    start at step t; final_dones [N] marks an episode that ended at the rollout's last step.
+    An episode cut off by the rollout's end is not scored, as in the reference implementations (dcd,
+    JaxUED): after a failed 250-step episode, a 6-step piece would otherwise weigh as much as it. A copy
+    that completed no episode (one episode spans its whole rollout) is scored on that episode."""
     steps, n = advantages.shape
     starts = dones.bool().clone()
     starts[0] = True
+    ends = torch.cat([starts[1:], final_dones.bool().unsqueeze(0)])  # step t is its episode's last
     episode = torch.cumsum(starts.t().reshape(-1).long(), 0) - 1  # copy-major episode ids
     num_episodes = int(episode[-1]) + 1
+    per_episode = lambda values: torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, values)  # noqa: E731
     positive = advantages.clamp(min=0).t().reshape(-1)
-    sums = torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, positive)
-    lengths = torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, torch.ones_like(positive))
+    episode_scores = per_episode(positive) / per_episode(torch.ones_like(positive))
+    completed = per_episode(ends.t().reshape(-1).float()) > 0
     copy_of_episode = torch.zeros(num_episodes, dtype=torch.long, device=advantages.device)
     copy_of_episode[episode] = torch.arange(n, device=advantages.device).repeat_interleave(steps)
-    per_copy = torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, sums / lengths)
-    episodes_per_copy = torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, torch.ones(num_episodes, device=advantages.device))
-    return per_copy / episodes_per_copy
+    per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
+    scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
+    return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -312,6 +317,7 @@ class Rollout:
         self.logprobs = torch.zeros(num_steps, num_envs, device=device)
         self.rewards = torch.zeros(num_steps, num_envs, device=device)
         self.dones = torch.zeros(num_steps, num_envs, device=device)  # 1 where an episode starts at step t
+        self.final_dones = torch.zeros(num_envs, device=device)  # 1 where the last step ended an episode
         self.values = torch.zeros(num_steps, num_envs, device=device)
 
 
@@ -387,6 +393,7 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     torch.stack(values, out=storage.values)
     storage.rewards.copy_(torch.from_numpy(rewards))
     storage.dones.copy_(torch.from_numpy(starts))
+    storage.final_dones.copy_(torch.from_numpy(ended))
     # GAE (in numpy: 256 small steps are cheaper there than as tensor ops).
     value = storage.values.cpu().numpy()
     next_nonterminal = 1.0 - np.concatenate([starts[1:], ended[None]]).astype(np.float32)
@@ -421,7 +428,7 @@ def minibatch_rows(recurrent: bool, args: Args, device):
 
 
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
-    """The value loss of SPEC 4: clipped as the surrogate (maze), Huber (CarRacing) or squared error."""
+    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
         clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
         return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
@@ -549,7 +556,7 @@ if __name__ == "__main__":
 
         agent.eval()
         advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device, normalizer)
-        scores = positive_value_loss(advantages, storage.dones).cpu().numpy()
+        scores = positive_value_loss(advantages, storage.dones, storage.final_dones).cpu().numpy()
         trained = replay or train_on_new_levels
         stats = {}
         if trained:  # Robust PLR: no gradient step on new levels

@@ -336,6 +336,10 @@ class CarRacingEnv:
         """The DR generator: 12 distinct uniformly random sketch cells per track."""
         return designed_levels(np.argsort(rng.random((n, NUM_CELLS)), axis=1)[:, :NUM_CONTROL_POINTS])
 
+    def draw_starts(self, levels: CarRacingLevels) -> CarRacingLevels:
+        """The levels unchanged: their start has no random part (the maze draws a start direction)."""
+        return levels
+
     def mutate(self, levels: CarRacingLevels, rng: np.random.Generator, num_edits: int = 3) -> CarRacingLevels:
         """Edited copies: `num_edits` times, one random control point of each designed track moves to a
         random one of its up to 8 neighbouring cells that is on the grid and free (it stays if none

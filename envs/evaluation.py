@@ -8,6 +8,11 @@ together only for speed. The policy is the stochastic one.
 
 from __future__ import annotations
 
+import argparse
+import json
+import os
+import sys
+
 import numpy as np
 import torch
 
@@ -64,74 +69,127 @@ def evaluate_all(agent, env_name: str, names, episodes: int, seed: int, device) 
 
 
 # ---------------------------------------------------------------------------------------------------
-# Aggregating over seeds (SPEC 5): mean and standard error per level, IQM and optimality gap with
-# stratified-bootstrap confidence intervals (the method of Agarwal et al. 2021, "rliable").
+# Aggregating over seeds: mean and standard error per level, IQM and optimality gap with 95%
+# stratified-bootstrap percentile intervals (the methods of Agarwal et al. 2021, as in their rliable).
+# Scores are [runs, tasks] matrices; the statistics also take a batch of them, [..., runs, tasks].
 # ---------------------------------------------------------------------------------------------------
-def interquartile_mean(scores: np.ndarray) -> float:
-    """Mean of the middle 50% of all scores [runs, tasks] (25% cut from each end, as scipy's trim_mean)."""
-    flat = np.sort(scores.reshape(-1))
-    cut = int(0.25 * len(flat))
-    return float(flat[cut : len(flat) - cut].mean())
+BOOTSTRAP_REPETITIONS = 10_000
+METRICS = ("solved_rate", "mean_return")
 
 
-def optimality_gap(scores: np.ndarray, target: float = 1.0) -> float:
-    """How far scores fall short of the target on average: mean of max(target - score, 0)."""
-    return float(np.maximum(target - scores, 0.0).mean())
+def fail(message: str) -> None:
+    """Bad input: one clear line, exit status 2."""
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
 
 
-def bootstrap_interval(scores: np.ndarray, statistic, repetitions: int = 2000, seed: int = 0) -> tuple[float, float]:
-    """95% interval of statistic(scores [runs, tasks]), resampling runs with replacement per task."""
+def interquartile_mean(scores: np.ndarray):
+    """Mean of the middle 50% of all runs' and tasks' scores: int(25%) of them cut from each end, as
+    scipy.stats.trim_mean(scores, 0.25, axis=None). One value per matrix of the batch."""
+    flat = np.sort(scores.reshape(*scores.shape[:-2], -1), axis=-1)
+    cut = int(0.25 * flat.shape[-1])
+    return flat[..., cut : flat.shape[-1] - cut].mean(axis=-1)
+
+
+def optimality_gap(scores: np.ndarray, target: float = 1.0):
+    """How far scores fall short of the target on average: mean of max(target - score, 0). One value per
+    matrix of the batch."""
+    return np.maximum(target - scores, 0.0).mean(axis=(-2, -1))
+
+
+def bootstrap_interval(scores: np.ndarray, statistic, repetitions: int = BOOTSTRAP_REPETITIONS,
+                       seed: int = 0) -> tuple[float, float]:
+    """95% percentile interval of statistic(scores [runs, tasks]) under the stratified bootstrap: each
+    resample draws, for every task independently, as many runs as there are with replacement.
+    `statistic` maps resamples [n, runs, tasks] to [n] values; they are drawn in chunks to bound memory."""
     rng = np.random.default_rng(seed)
     runs, tasks = scores.shape
-    draws = rng.integers(0, runs, (repetitions, runs, tasks))
-    values = [statistic(scores[d, np.arange(tasks)]) for d in draws]
-    return float(np.percentile(values, 2.5)), float(np.percentile(values, 97.5))
+    chunk = max(1, 1_000_000 // scores.size)
+    values = []
+    for start in range(0, repetitions, chunk):
+        picks = rng.integers(0, runs, (min(chunk, repetitions - start), runs, tasks))
+        values.append(statistic(scores[picks, np.arange(tasks)]))
+    low, high = np.percentile(np.concatenate(values), [2.5, 97.5])
+    return float(low), float(high)
 
 
-def aggregate(results: list[dict], metric: str = "solved_rate") -> dict:
-    """Summary over runs (seeds) of their eval.json results: per level mean and standard error, the mean
-    over levels, IQM and optimality gap with 95% bootstrap intervals."""
+def aggregate(results: list[dict], metric: str = "solved_rate", target: float | None = None) -> dict:
+    """Summary over runs (seeds) of their eval.json results on the same levels: per level mean and
+    standard error, the mean over levels, IQM and optimality gap (shortfall from `target`, which
+    defaults to 1.0 only for solved_rate) with 95% bootstrap intervals."""
+    if target is None:
+        if metric != "solved_rate":
+            raise ValueError(f"the optimality gap of {metric} needs a target")
+        target = 1.0
     names = [name for name in results[0] if name != "mean"]
     scores = np.array([[r[name][metric] for name in names] for r in results])
     count = len(results)
     stderr = scores.std(axis=0, ddof=1) / np.sqrt(count) if count > 1 else np.zeros(len(names))
     per_run_mean = scores.mean(axis=1)
+
+    def gap(s):
+        return optimality_gap(s, target)
+
     return {
         "runs": count,
         "levels": {name: {"mean": float(m), "stderr": float(s)} for name, m, s in zip(names, scores.mean(axis=0), stderr)},
         "mean": float(per_run_mean.mean()),
         "mean_stderr": float(per_run_mean.std(ddof=1) / np.sqrt(count)) if count > 1 else 0.0,
-        "iqm": interquartile_mean(scores),
+        "iqm": float(interquartile_mean(scores)),
         "iqm_ci": bootstrap_interval(scores, interquartile_mean),
-        "optimality_gap": optimality_gap(scores),
-        "optimality_gap_ci": bootstrap_interval(scores, optimality_gap),
+        "optimality_gap": float(gap(scores)),
+        "optimality_gap_ci": bootstrap_interval(scores, gap),
     }
 
 
-def main(argv=None) -> None:
-    """python -m envs.evaluation RUN_DIR [RUN_DIR ...] [--plot PNG]: the runs' eval.json, grouped by their
-    exp_name (one group per method, one run per seed), summarized as in the paper."""
-    import argparse
-    import json
-    import os
-    import sys
-
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("runs", nargs="+", help="run directories holding eval.json and args.json")
-    parser.add_argument("--metric", default="solved_rate", help="solved_rate or mean_return")
-    parser.add_argument("--plot", default=None, help="save a PNG of IQM and optimality gap per method")
-    options = parser.parse_args(argv)
-    groups: dict[str, list] = {}
-    for run in options.runs:
+def load_groups(run_dirs: list[str]) -> dict[str, list[dict]]:
+    """The runs' eval.json results grouped by "<env> <exp_name>" from their args.json (one group per env
+    and method, one run per seed). Fails on a directory that is not a finished run, and on a group whose
+    runs were evaluated on different levels."""
+    groups: dict[str, list[dict]] = {}
+    for run in run_dirs:
         paths = [os.path.join(run, "eval.json"), os.path.join(run, "args.json")]
         if not all(os.path.isfile(p) for p in paths):
-            print(f"error: {run} is not a finished run (needs eval.json and args.json)", file=sys.stderr)
-            sys.exit(2)
+            fail(f"{run} is not a finished run (needs eval.json and args.json)")
         with open(paths[1]) as f:
-            name = json.load(f)["exp_name"]
+            args = json.load(f)
         with open(paths[0]) as f:
-            groups.setdefault(name, []).append(json.load(f))
-    summaries = {name: aggregate(results, options.metric) for name, results in groups.items()}
+            results = json.load(f)
+        if "env" not in args or "exp_name" not in args:
+            fail(f"{run}/args.json names no env and exp_name")
+        name = f"{args['env']} {args['exp_name']}"
+        group = groups.setdefault(name, [])
+        if group and set(group[0]) != set(results):
+            fail(f"{run} was evaluated on other levels than the other {name} runs")
+        group.append(results)
+    return groups
+
+
+def main(argv=None) -> None:
+    """python -m envs.evaluation RUN_DIR [RUN_DIR ...] [--metric M] [--target T] [--plot PNG]: the runs'
+    eval.json, grouped by env and exp_name (one group per method, one run per seed), summarized as in
+    the paper."""
+
+    class Parser(argparse.ArgumentParser):
+        def error(self, message):
+            fail(message)
+
+    parser = Parser(description=main.__doc__)
+    parser.add_argument("runs", nargs="+", help="run directories holding eval.json and args.json")
+    parser.add_argument("--metric", default="solved_rate", choices=METRICS, help="the per-level score to aggregate")
+    parser.add_argument("--target", type=float, default=None,
+                        help="the optimality gap measures how far scores fall short of this: the best score "
+                             "that counts (default 1.0 for solved_rate; required for mean_return, whose best "
+                             "value depends on the env)")
+    parser.add_argument("--plot", default=None, help="save a PNG of IQM and optimality gap per group")
+    options = parser.parse_args(argv)
+    if options.target is None and options.metric != "solved_rate":
+        fail(f"--metric {options.metric} needs --target, the score its optimality gap is measured from")
+    target = 1.0 if options.target is None else options.target
+    groups = load_groups(options.runs)
+    summaries = {name: aggregate(results, options.metric, target) for name, results in groups.items()}
+    print(f"{options.metric}; optimality gap below {target:g}; 95% intervals from {BOOTSTRAP_REPETITIONS} "
+          f"stratified bootstrap resamples")
     for name, s in summaries.items():
         print(f"{name} ({s['runs']} runs): mean {s['mean']:.3f} +- {s['mean_stderr']:.3f}, IQM {s['iqm']:.3f} "
               f"[{s['iqm_ci'][0]:.3f}, {s['iqm_ci'][1]:.3f}], optimality gap {s['optimality_gap']:.3f} "

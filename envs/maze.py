@@ -39,7 +39,7 @@ NOISE_DIM = 50
 @dataclasses.dataclass
 class MazeLevels(LevelBatch):
     """A batch of mazes: walls [B, H, W] bool (outer ring included), goal and agent start [B, 2] as
-    (x, y), and the start direction [B] (RANDOM_DIRECTION: drawn at every episode start)."""
+    (x, y), and the start direction [B] (RANDOM_DIRECTION: drawn when the level is reset)."""
 
     walls: np.ndarray
     goal: np.ndarray
@@ -219,7 +219,10 @@ class MazeEnv:
     through walls; cells outside the grid read as walls, the agent's own cell as empty.
     Action: Discrete(7); only left, right and forward act. Reward: 1 - 0.9 * t / max_steps on reaching
     the goal (t the 1-based step count of the episode), else 0. At max_steps the episode is truncated.
-    Either way the copy restarts its level at once, with a new random start direction.
+    Either way the copy restarts its level at once, from the same start position and direction.
+    A level whose start direction is random (RANDOM_DIRECTION) gets one drawn at `reset`, kept for all
+    its episodes until the next `reset`, as the reference does: to give two agents the same start,
+    draw it first with `draw_starts` and reset both with the result.
     """
 
     def __init__(self, name: str = "maze", num_envs: int = 32, seed: int = 0):
@@ -268,28 +271,49 @@ class MazeEnv:
         return MazeLevels(empty_grid(n), xy[:, 0], xy[:, 1], np.full(n, RANDOM_DIRECTION, np.int8))
 
     def mutate(self, levels: MazeLevels, rng: np.random.Generator, num_edits: int = 5) -> MazeLevels:
-        """ACCEL's maze editor: `num_edits` random edits per level, each setting one random interior
-        cell to wall, empty, goal or agent. An edit that would put a wall on the goal or agent, or the
-        goal on the agent (or the reverse), is skipped, so every child keeps exactly one goal and one
-        agent start, on different free cells."""
+        """ACCEL's maze editor, as the reference's ACCEL mazes edit (dcd's `mutate_level` with the
+        wall / empty / goal editor): `num_edits` random interior cells per level, drawn with replacement
+        (a repeated cell is edited once), each set to wall, empty or goal with equal probability. An
+        edited cell loses what it held; a goal edit moves the goal there. A goal or agent start that an
+        edit erased is placed afterwards on a uniformly random cell that was free (no wall, goal or
+        agent) after the edits, the goal first. So the start moves only when an edit lands on it."""
         child = levels.copy()
         n, h, w = child.walls.shape
         index = np.arange(n)
-        for _ in range(num_edits):
-            x = rng.integers(1, w - 1, n)
-            y = rng.integers(1, h - 1, n)
-            kind = rng.integers(0, 4, n)
-            on_goal = (x == child.goal[:, 0]) & (y == child.goal[:, 1])
-            on_agent = (x == child.agent[:, 0]) & (y == child.agent[:, 1])
-            wall = (kind == 0) & ~on_goal & ~on_agent
-            clear = (kind == 1) | ((kind == 2) & ~on_agent) | ((kind == 3) & ~on_goal)
-            child.walls[index[wall], y[wall], x[wall]] = True
-            child.walls[index[clear], y[clear], x[clear]] = False
-            move_goal = (kind == 2) & ~on_agent
-            move_agent = (kind == 3) & ~on_goal
-            child.goal[move_goal] = np.stack([x, y], axis=1)[move_goal]
-            child.agent[move_agent] = np.stack([x, y], axis=1)[move_agent]
+        free = ~child.walls
+        free[index, child.goal[:, 1], child.goal[:, 0]] = False
+        free[index, child.agent[:, 1], child.agent[:, 0]] = False
+        goal_erased = np.zeros(n, dtype=bool)
+        agent_erased = np.zeros(n, dtype=bool)
+        edited = np.zeros((num_edits, n, 2), dtype=np.int64)
+        for e in range(num_edits):
+            xy = np.stack([rng.integers(1, w - 1, n), rng.integers(1, h - 1, n)], axis=1)
+            kind = rng.integers(0, 3, n)  # 0 wall, 1 empty, 2 goal
+            edited[e] = xy
+            act = ~np.any(np.all(edited[:e] == xy, axis=2), axis=0)  # first edit of this cell
+            x, y = xy[:, 0], xy[:, 1]
+            goal_erased |= act & np.all(xy == child.goal, axis=1)
+            agent_erased |= act & np.all(xy == child.agent, axis=1)
+            child.walls[index[act], y[act], x[act]] = kind[act] == 0
+            moved_goal = act & (kind == 2)
+            old_goal = moved_goal & ~goal_erased  # the goal leaves its old cell, which becomes free
+            free[index[old_goal], child.goal[old_goal, 1], child.goal[old_goal, 0]] = True
+            free[index[act], y[act], x[act]] = kind[act] == 1
+            child.goal[moved_goal] = xy[moved_goal]
+            goal_erased &= ~moved_goal
+        for erased, position in ((goal_erased, child.goal), (agent_erased, child.agent)):
+            if erased.any():
+                position[erased] = random_free_cells(free[erased], rng)
+                free[index[erased], position[erased, 1], position[erased, 0]] = False
         return child
+
+    def draw_starts(self, levels: MazeLevels) -> MazeLevels:
+        """The levels with every random start direction drawn now (PAIRED's two students then play
+        each level from the same start, so their regret compares like with like)."""
+        drawn = levels.copy()
+        random = drawn.agent_dir < 0
+        drawn.agent_dir[random] = self.rng.integers(0, 4, int(random.sum()))
+        return drawn
 
     def test_levels(self) -> dict[str, HeldOutLevel]:
         from envs.maze_heldout import held_out_mazes
@@ -316,7 +340,7 @@ class MazeEnv:
         self.codes = codes.reshape(-1)
         self.base = index * self.height * self.width
         self.start = (levels.agent[:, 1] + pad) * self.width + levels.agent[:, 0] + pad
-        self.start_dir = levels.agent_dir.astype(np.int64)
+        self.start_dir = self.draw_starts(levels).agent_dir.astype(np.int64)
         self.move = DIRECTION_VECTORS[:, 0] + DIRECTION_VECTORS[:, 1] * self.width
         forward = np.arange(VIEW_SIZE - 1, -1, -1)[:, None]  # row 0 is the farthest
         lateral = np.arange(VIEW_SIZE)[None, :] - VIEW_SIZE // 2
@@ -354,8 +378,7 @@ class MazeEnv:
 
     def _restart(self, done: np.ndarray) -> None:
         self.pos[done] = self.start[done]
-        fixed = self.start_dir[done]
-        self.dir[done] = np.where(fixed >= 0, fixed, self.rng.integers(0, 4, len(fixed)))
+        self.dir[done] = self.start_dir[done]
         self.t[done] = 0
 
     def _observation(self) -> dict:

@@ -906,6 +906,10 @@ class WalkerEnv:
         """PAIRED's adversary MDP, its noise drawn from the env's rng."""
         return WalkerTeacherMDP(self.rng)
 
+    def draw_starts(self, levels: WalkerLevels) -> WalkerLevels:
+        """The levels unchanged: their start has no random part (the maze draws a start direction)."""
+        return levels
+
     def mutate(self, levels: WalkerLevels, rng: np.random.Generator, num_edits: int = NUM_EDITS) -> WalkerLevels:
         """ACCEL's walker editor (SPEC 3): `num_edits` edits per level, each picking a parameter and a
         direction in {-1, 0, +1} and moving it by its edit size (roughness: U(0, 0.6)); clipped to the

@@ -214,16 +214,18 @@ def test_restart_after_moving_returns_to_start():
     assert trunc and pos(env) == (2, 2) and obs["direction"][0] == NORTH
 
 
-def test_start_direction_random_when_unset_fixed_when_given():
+def test_random_start_direction_is_drawn_at_reset_and_kept_for_the_rollout():
+    """As the reference: a level's random start direction is drawn when the level is reset, and every
+    episode of that level until the next reset starts with it (the old env redrew it per episode)."""
     env, obs = make_env(parse(OPEN3, agent_dir=-1), max_steps=1, seed=3)
-    seen = [int(obs["direction"][0])]
-    for _ in range(400):  # every step truncates, so every step is a fresh episode start
+    drawn = int(obs["direction"][0])
+    for _ in range(100):  # every step truncates, so every step is a fresh episode start
         obs, _, _, trunc = step1(env, 3)
-        assert trunc
-        seen.append(int(obs["direction"][0]))
-    counts = np.bincount(seen, minlength=4)
-    assert len(counts) == 4 and counts.min() > 60, counts
-    # env.reset draws it too: 64 copies of one level do not all start alike.
+        assert trunc and obs["direction"][0] == drawn
+    firsts = [int(env.reset(parse(OPEN3, agent_dir=-1), max_steps=1)["direction"][0]) for _ in range(400)]
+    counts = np.bincount(firsts, minlength=4)
+    assert len(counts) == 4 and counts.min() > 60, counts  # uniform over the 4 directions
+    # 64 copies of one level do not all start alike.
     env64 = MazeEnv("maze", num_envs=64, seed=1)
     obs = env64.reset(parse(*[OPEN3] * 64, agent_dir=-1))
     assert len(set(obs["direction"].tolist())) == 4
@@ -233,6 +235,20 @@ def test_start_direction_random_when_unset_fixed_when_given():
     for _ in range(50):
         obs, _, _, _ = step1(env, RIGHT)
         assert obs["direction"][0] == SOUTH
+
+
+def test_draw_starts_gives_two_agents_the_same_start():
+    """PAIRED's students play a level from one start: resetting with draw_starts' levels repeats it."""
+    env = MazeEnv("maze", num_envs=64, seed=2)
+    levels = parse(*[OPEN3] * 64, agent_dir=-1)
+    levels.agent_dir[:8] = WEST
+    drawn = env.draw_starts(levels)
+    assert np.all(levels.agent_dir[8:] == -1)  # the input is untouched
+    assert np.all(drawn.agent_dir[:8] == WEST) and len(set(drawn.agent_dir[8:].tolist())) == 4
+    first, second = env.reset(drawn)["direction"], env.reset(drawn)["direction"]
+    np.testing.assert_array_equal(first, drawn.agent_dir)
+    np.testing.assert_array_equal(second, drawn.agent_dir)
+    assert np.any(env.reset(levels)["direction"] != env.reset(levels)["direction"])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -571,103 +587,105 @@ def test_mutation_invariants(seed):
         np.testing.assert_array_equal(getattr(parents, field), getattr(saved, field))
     check_valid(child)
     np.testing.assert_array_equal(child.agent_dir, parents.agent_dir)
-    cost = edit_cost(parents, child)
-    assert cost.max() <= 5
-    assert (cost > 0).mean() > 0.9  # edits usually change something
-    # Every kind of edit happens somewhere in the batch.
-    idx = np.arange(len(parents))
+    assert (edit_cost(parents, child) > 0).mean() > 0.9  # edits usually change something
     assert np.any(np.any(child.goal != parents.goal, axis=1))
-    assert np.any(np.any(child.agent != parents.agent, axis=1))
     assert np.any(child.walls & ~parents.walls) and np.any(~child.walls & parents.walls)
     walls_diff = child.walls.sum(axis=(1, 2)).astype(int) - parents.walls.sum(axis=(1, 2))
     assert walls_diff.max() <= 5 and walls_diff.min() >= -5
 
 
-def test_single_edit_is_one_of_four_kinds():
+def test_mutation_moves_the_start_only_when_an_edit_lands_on_it():
+    """The reference's ACCEL mazes edit walls, empty cells and the goal, never the agent directly: the
+    start moves only if one of the 5 edits hits its cell, 1 - (168/169)^5 = 2.9% of children of a
+    13x13 interior. (The old editor, with an agent edit, moved it in 75% of children.) Each edit sets
+    a wall with probability 1/3: in empty rooms a child gains 5/3 walls less repeated cells, 1.63."""
     env = MazeEnv("maze", 1, seed=0)
-    parents = env.random_levels(1000, np.random.default_rng(5))
-    child = env.mutate(parents, np.random.default_rng(6), num_edits=1)
+    parents = env.empty_levels(4000, np.random.default_rng(0))
+    child = env.mutate(parents, np.random.default_rng(1))
     check_valid(child)
-    cost = edit_cost(parents, child)
-    assert cost.max() <= 1
-    flips = (parents.walls != child.walls).sum(axis=(1, 2))
-    moved_goal = np.any(parents.goal != child.goal, axis=1)
-    moved_agent = np.any(parents.agent != child.agent, axis=1)
-    assert not np.any(moved_goal & moved_agent)
-    assert np.all(flips <= 1)
-    added = (child.walls & ~parents.walls).sum(axis=(1, 2))
-    # The goal or agent can only clear the wall of the cell it moved to.
-    idx = np.arange(len(parents))
-    assert np.all(~child.walls[idx, child.goal[:, 1], child.goal[:, 0]])
-    assert not np.any((moved_goal | moved_agent) & (added > 0))
-    kinds = np.select([added > 0, (flips > 0) & ~moved_goal & ~moved_agent, moved_goal, moved_agent], [0, 1, 2, 3], -1)
-    assert set(kinds.tolist()) >= {0, 1, 2, 3}
+    moved = np.any(child.agent != parents.agent, axis=1).mean()
+    assert 0.015 < moved < 0.045, moved
+    added = (child.walls & ~parents.walls).sum(axis=(1, 2)).mean()
+    assert 1.55 < added < 1.71, added
 
 
 class ScriptedRng:
     """Stands in for np.random.Generator in `mutate`: integers(low, high, n) answers from a script per
-    (low, high) pair, so the column x, the row y and the kind of each edit are chosen by the test."""
+    (low, high) pair, so the column x, the row y and the kind of each edit are chosen by the test;
+    random(shape) puts its maximum on the scripted (x, y) cells, in turn (where an erased goal or agent
+    start is placed again)."""
 
-    def __init__(self, script: dict):
+    def __init__(self, script: dict, width: int, picks=()):
         self.script = {k: list(v) for k, v in script.items()}
+        self.width, self.picks = width, list(picks)
 
     def integers(self, low, high, size):
         value = self.script[(low, high)].pop(0)
         return np.full(size, value, dtype=np.int64)
 
+    def random(self, shape):
+        x, y = self.picks.pop(0)
+        scores = np.zeros(shape)
+        scores[:, y * self.width + x] = 1.0
+        return scores
 
-def test_mutation_hand_worked_edits():
-    # A 5x7 level (h = 5, w = 7) so x in [1, 6), y in [1, 4) and kind in [0, 4) draw from distinct ranges.
-    level = parse(
-        """
+
+def scripted(edits, picks=()):
+    """A ScriptedRng for a 5x7 level (h = 5, w = 7): x in [1, 6), y in [1, 4), kind in [0, 3)."""
+    return ScriptedRng({(1, 6): [e[0] for e in edits], (1, 4): [e[1] for e in edits], (0, 3): [e[2] for e in edits]}, 7, picks)
+
+
+MUTATION_PARENT = """
         #######
         #A..#.#
         #.#...#
         #....G#
         #######
-        """,
-        agent_dir=1,
-    )
-    edits = [  # (x, y, kind): 0 wall, 1 empty, 2 goal, 3 agent
+        """
+
+
+def test_mutation_hand_worked_edits():
+    level = parse(MUTATION_PARENT, agent_dir=1)
+    edits = [  # (x, y, kind): 0 wall, 1 empty, 2 goal
         (2, 1, 0),  # wall at (2, 1)
-        (2, 2, 2),  # goal to (2, 2), clearing its wall
-        (2, 2, 3),  # agent onto the goal: skipped
-        (1, 1, 0),  # wall on the agent: skipped
+        (2, 2, 2),  # goal to (2, 2), clearing its wall; its old cell (5, 3) becomes empty
+        (2, 2, 1),  # the same cell again: edited once only, so the goal stays
         (4, 1, 1),  # (4, 1) emptied
+        (3, 3, 0),  # wall at (3, 3)
     ]
-    rng = ScriptedRng({(1, 6): [e[0] for e in edits], (1, 4): [e[1] for e in edits], (0, 4): [e[2] for e in edits]})
-    child = MazeEnv("maze", 1).mutate(level, rng)
+    child = MazeEnv("maze", 1).mutate(level, scripted(edits))
     expected = parse(
         """
         #######
         #A#...#
         #.G...#
-        #.....#
+        #..#..#
         #######
         """,
         agent_dir=1,
     )
-    np.testing.assert_array_equal(child.walls, expected.walls)
-    np.testing.assert_array_equal(child.goal, expected.goal)
-    np.testing.assert_array_equal(child.agent, expected.agent)
-    np.testing.assert_array_equal(child.agent_dir, [1])
+    for field in ("walls", "goal", "agent", "agent_dir"):
+        np.testing.assert_array_equal(getattr(child, field), getattr(expected, field))
 
-    # The agent moves onto a wall cell (clearing it); emptying the goal's cell leaves the goal there.
-    edits = [(4, 1, 3), (5, 3, 1), (3, 3, 0), (1, 3, 2), (1, 1, 0)]
-    rng = ScriptedRng({(1, 6): [e[0] for e in edits], (1, 4): [e[1] for e in edits], (0, 4): [e[2] for e in edits]})
-    child = MazeEnv("maze", 1).mutate(level, rng)
+
+def test_mutation_places_an_erased_goal_and_start_on_free_cells():
+    level = parse(MUTATION_PARENT)
+    edits = [(1, 1, 0), (5, 3, 0), (4, 1, 1), (2, 2, 1), (3, 2, 0)]  # walls over the start and the goal
+    child = MazeEnv("maze", 1).mutate(level, scripted(edits, picks=[(4, 1), (2, 2)]))  # goal first, then start
     expected = parse(
         """
         #######
-        ##..A.#
-        #.#...#
-        #G.#..#
+        ##..G.#
+        #.A#..#
+        #....##
         #######
         """
     )
-    np.testing.assert_array_equal(child.walls, expected.walls)
-    np.testing.assert_array_equal(child.goal, expected.goal)
-    np.testing.assert_array_equal(child.agent, expected.agent)
+    for field in ("walls", "goal", "agent"):
+        np.testing.assert_array_equal(getattr(child, field), getattr(expected, field))
+    # A goal edit on the start erases it too: the start moves to a free cell, never onto the new goal.
+    child = MazeEnv("maze", 1).mutate(level, scripted([(1, 1, 2)] * 5, picks=[(1, 1)]))
+    assert tuple(child.goal[0]) == (1, 1) and tuple(child.agent[0]) == (2, 1)  # (1, 1) is taken: first free cell
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -51,7 +51,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
             levels = env.empty_levels(args.num_envs, rng)
         agent.eval()
         advantages, returns, _ = accel.collect_rollout(agent, env, levels, storage, args, "cpu")
-        scores = accel.positive_value_loss(advantages, storage.dones).numpy()
+        scores = accel.positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
         if not replay:  # Robust PLR: new levels are only scored
             buffer.insert(levels, scores, update)
             continue
@@ -62,7 +62,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
         children = env.mutate(levels[accel.select_parents(scores, args.edit_levels)], rng, args.num_edits)
         agent.eval()
         child_advantages, _, _ = accel.collect_rollout(agent, env, children, storage, args, "cpu")
-        children_entered += buffer.insert(children, accel.positive_value_loss(child_advantages, storage.dones).numpy(), update)
+        children_entered += buffer.insert(children, accel.positive_value_loss(child_advantages, storage.dones, storage.final_dones).numpy(), update)
     after = evaluation()
 
     assert replays >= 15 and children_entered > 0  # the ACCEL loop ran: mostly replay, edited levels entered

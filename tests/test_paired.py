@@ -241,7 +241,7 @@ def test_ppo_update_with_clone_target_moves_the_cloner_toward_the_target():
         optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
         np.random.seed(0)
         torch.manual_seed(0)
-        stats = paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args, 1, "cpu",
+        stats = paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args.update_epochs, args.num_minibatches, args, 1, "cpu",
                                      clone_target=clone_target, kl_coef=1.0)
         results[name] = (stats, kl_on(storage, target, agent, args.num_envs))
     kl_start = kl_on(storage, target, start, args.num_envs)
@@ -262,7 +262,7 @@ def test_ppo_update_kl_coef_zero_is_plain_ppo():
         agent = copy.deepcopy(start)
         optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
         np.random.seed(0)
-        paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args, 1, "cpu",
+        paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args.update_epochs, args.num_minibatches, args, 1, "cpu",
                              clone_target=clone_target, kl_coef=0.0)
         weights.append(agent.state_dict())
     assert all(torch.allclose(weights[0][k], weights[1][k], atol=1e-6) for k in weights[0])
@@ -374,6 +374,29 @@ def test_paper_defaults_per_script_and_env(module, env, expected):
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda, args.update_epochs,
             args.num_minibatches, args.value_loss) == (32, 256, 1e-4, 0.995, 0.95, 5, 1, "clipped")
     assert not getattr(args, "bidirectional", False)
+
+
+@pytest.mark.parametrize("module", [paired, paired_hient, paired_bc])
+def test_walker_teacher_takes_the_references_ppo_settings(module):
+    """The reference's walker PAIRED teacher: 8 epochs, 4 minibatches, entropy 0.01 (students: 5 and 32);
+    the maze teacher trains as its students (5 epochs, 1 minibatch); value loss smooth L1 on the walker."""
+    args = module.resolve_args(module.Args(env="walker"))
+    assert (args.teacher_update_epochs, args.teacher_num_minibatches, args.teacher_ent_coef) == (8, 4, 0.01)
+    assert (args.update_epochs, args.num_minibatches, args.value_loss) == (5, 32, "huber")
+    args = module.resolve_args(module.Args(env="maze"))
+    assert (args.teacher_update_epochs, args.teacher_num_minibatches) == (5, 1)
+
+
+def test_teacher_update_uses_its_own_epochs_and_minibatches():
+    """ppo_update takes the epochs and minibatches it is given (the teacher's), not the students'."""
+    args, start, storage, advantages, returns = bc_setup()
+    steps = []
+    for epochs, minibatches in ((1, 1), (3, 2)):
+        agent = copy.deepcopy(start)
+        optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
+        paired.ppo_update(agent, optimizer, storage, advantages, returns, 0.0, epochs, minibatches, args, 1, "cpu")
+        steps.append(optimizer.state_dict()["state"][0]["step"].item())
+    assert steps == [1, 6]
 
 
 def test_explicit_options_override_the_paper_defaults():

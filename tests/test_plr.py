@@ -8,17 +8,39 @@ import plr
 from envs.maze import MazeEnv
 
 
-def test_positive_value_loss_averages_episode_means():
+def test_positive_value_loss_averages_completed_episode_means():
     advantages = torch.tensor([[0.5, -1.0], [-0.2, 2.0], [0.3, 1.0], [1.0, 0.0]])
     dones = torch.tensor([[1.0, 1.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])  # copy 0: episodes {0,1}, {2,3}
-    scores = plr.positive_value_loss(advantages, dones)
+    scores = plr.positive_value_loss(advantages, dones, torch.tensor([1.0, 1.0]))  # both end at the last step
     # copy 0: mean(0.5, 0) = 0.25 and mean(0.3, 1.0) = 0.65 -> 0.45; copy 1: mean(0, 2, 1, 0) = 0.75
     assert torch.allclose(scores, torch.tensor([0.45, 0.75]))
 
 
-def test_positive_value_loss_counts_first_step_as_start():
-    scores = plr.positive_value_loss(torch.tensor([[1.0], [3.0]]), torch.zeros(2, 1))
+def test_positive_value_loss_skips_the_episode_cut_off_by_the_rollout_end():
+    """The reference scores completed episodes only. A failed 250-step episode with advantages 0.01,
+    then a 6-step piece cut off by the rollout's end with advantages 0.5: the score is 0.01 (the old
+    rule averaged the two episodes' means: 0.255)."""
+    advantages = torch.cat([torch.full((250, 1), 0.01), torch.full((6, 1), 0.5)])
+    dones = torch.zeros(256, 1)
+    dones[250] = 1.0
+    assert torch.allclose(plr.positive_value_loss(advantages, dones, torch.zeros(1)), torch.tensor([0.01]))
+    # Had the piece ended at the last step, it would count: (0.01 + 0.5) / 2.
+    assert torch.allclose(plr.positive_value_loss(advantages, dones, torch.ones(1)), torch.tensor([0.255]))
+
+
+def test_positive_value_loss_of_a_copy_without_a_completed_episode_is_its_unfinished_one():
+    scores = plr.positive_value_loss(torch.tensor([[1.0], [3.0]]), torch.zeros(2, 1), torch.zeros(1))
     assert torch.allclose(scores, torch.tensor([2.0]))
+
+
+def test_positive_value_loss_is_the_same_in_plr_and_accel():
+    import accel
+
+    rng = torch.Generator().manual_seed(0)
+    advantages = torch.randn(64, 8, generator=rng)
+    dones = (torch.rand(64, 8, generator=rng) < 0.1).float()
+    final = (torch.rand(8, generator=rng) < 0.5).float()
+    assert torch.equal(plr.positive_value_loss(advantages, dones, final), accel.positive_value_loss(advantages, dones, final))
 
 
 def test_rank_weights_with_temperature():

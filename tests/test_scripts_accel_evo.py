@@ -206,3 +206,18 @@ def test_killed_run_resumes_to_the_same_result(finished, killed, straight):
     drop = lambda rows: [{k: v for k, v in r.items() if k != "sps"} for r in rows]  # noqa: E731
     assert drop(got) == drop(expected)
     assert json.load(open(os.path.join(run_dir, "eval.json"))) == json.load(open(os.path.join(straight_dir, "eval.json")))
+
+
+def test_accel_budget_in_gradient_updates(tmp_path):
+    """The paper trains ACCEL for 20k gradient updates: the maze default is that budget, without a step
+    limit, and a run given --gradient-updates stops after exactly that many replay updates."""
+    import accel
+
+    args = accel.resolve_args(accel.Args(env="maze"))
+    assert (args.gradient_updates, args.total_timesteps) == (20_000, 0)
+    result = run("accel.py", [*TINY, *AT_END, "--total-timesteps", "0", "--gradient-updates", "3"], tmp_path)
+    assert result.returncode == 0, result.stderr
+    rows = read_metrics(only_run_dir(tmp_path))
+    assert [int(r["gradient_updates"]) for r in rows][-1] == 3
+    assert len(replay_rows(rows)) == 3 and rows[-1]["replay"] == "1"
+    assert int(rows[-1]["env_steps"]) == BATCH * (len(rows) + 3)  # every replay update also plays the children

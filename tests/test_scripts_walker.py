@@ -64,7 +64,7 @@ def test_accel_walker_defaults_are_the_papers(tmp_path):
     assert (args.generator, args.replay_prob, args.level_buffer_size, args.temperature, args.staleness_coef,
             args.num_edits) == ("easy", 0.9, 1000, 0.1, 0.5, 3)
     assert (args.num_envs, args.num_steps, args.update_epochs, args.num_minibatches, args.learning_rate, args.gamma,
-            args.gae_lambda, args.ent_coef, args.value_loss, args.normalize_returns) == (16, 2000, 5, 32, 3e-4, 0.99, 0.9, 1e-3, "mse", True)
+            args.gae_lambda, args.ent_coef, args.value_loss, args.normalize_returns) == (16, 2000, 5, 32, 3e-4, 0.99, 0.9, 1e-3, "huber", True)
 
 
 def test_parameters_outside_their_ranges_are_refused():
