@@ -99,7 +99,9 @@ class Args:
 
     # Editing (SPEC 4, ACCEL)
     generator: Optional[str] = None
-    """new levels: random (the DR generator, maze and carracing default), empty rooms (maze, ACCEL-empty) or easy (walker default)"""
+    """new levels: random (the DR generator, maze default), empty rooms (maze, ACCEL-empty), easy (walker default) or sketch
+    (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
+    are continuous and cannot be edited)"""
     num_edits: Optional[int] = None
     """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
@@ -131,14 +133,14 @@ PAPER_DEFAULTS = {
     "carracing": dict(gradient_updates=0, total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, ent_coef=0.0, value_loss="huber",
                       normalize_returns=True, replay_prob=0.8, level_buffer_size=10000, temperature=0.3,
-                      staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
+                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
     "walker": dict(gradient_updates=0, total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
                    gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="huber",
                    normalize_returns=True, replay_prob=0.9, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
-GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random",), "walker": ("random", "easy")}
+GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("sketch", "random"), "walker": ("random", "easy")}
 
 
 def fail(message: str) -> None:
@@ -231,6 +233,32 @@ def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_don
     per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
     scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
     return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
+
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
+    def average_ranks(x):
+        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
+
+    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
+    if ranks_a.std() == 0 or ranks_b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
+    """How well the curriculum's score tracks the true regret, where the env knows each level's best
+    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
+    the true regret (optimal return - the student's mean return over its completed episodes; a level
+    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
+    env without a solver."""
+    if optimal is None:
+        return {}
+    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
+    true_regret = optimal - achieved
+    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
+            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -376,8 +404,9 @@ class ReturnNormalizer:
 
 @torch.no_grad()
 def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
-    """Play one rollout on `levels` (one per copy). Returns advantages, returns and episode stats
-    (episode returns are the env's own rewards; training uses the normalized ones if `normalizer`).
+    """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
+    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
+    `normalizer`).
     Each step's data are kept in numpy arrays and lists and moved into `storage` once at the end: at
     a maze step's size, a dozen small tensor copies per step would cost more than the env step."""
     obs = env.reset(levels)
@@ -389,7 +418,7 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     starts = np.empty((args.num_steps, args.num_envs), bool)  # True where an episode starts at step t
     actions, logprobs, values = [], [], []
     ended = np.ones(args.num_envs, dtype=bool)
-    episode_returns, running_return = [], np.zeros(args.num_envs)
+    episode_returns, running_return = [[] for _ in range(args.num_envs)], np.zeros(args.num_envs)
     for step in range(args.num_steps):
         for k, v in obs.items():
             step_obs[k][step] = v
@@ -404,9 +433,9 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
         ended = terminated | truncated
         rewards[step] = reward if normalizer is None else normalizer(reward, ended)
         running_return += reward
-        if ended.any():
-            episode_returns.extend(running_return[ended].tolist())
-            running_return[ended] = 0.0
+        for i in np.nonzero(ended)[0]:
+            episode_returns[i].append(running_return[i])
+        running_return[ended] = 0.0
     next_value = agent.get_value(to_torch(obs, device), state, torch.from_numpy(ended).to(device)).cpu().numpy()
     for k, v in step_obs.items():
         storage.obs[k].copy_(torch.from_numpy(v))
@@ -499,6 +528,7 @@ def metric_names(env) -> list[str]:
     return ["update", "env_steps", "gradient_updates", "sps", "replay", "mean_return", "solved_rate", "episodes",
             "buffer_size", "buffer_mean_score", "mean_score", *env.level_metric_names,
             "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
+            "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
@@ -585,7 +615,9 @@ if __name__ == "__main__":
 
         # Robust PLR: train on replayed levels only; new levels are played and scored.
         agent.eval()
-        advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device, normalizer)
+        played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
+        advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer)
+        episode_returns = [r for returns_of_level in returns_per_level for r in returns_of_level]
         scores = positive_value_loss(advantages, storage.dones, storage.final_dones).cpu().numpy()
         stats, edit_stats = {}, {}
         if replay:
@@ -618,7 +650,8 @@ if __name__ == "__main__":
                "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else 0.0,
                "episodes": len(episode_returns), "buffer_size": len(buffer),
                "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
-               **{k: float(np.mean(v)) for k, v in level_stats.items()}, **stats, **edit_stats}
+               **{k: float(np.mean(v)) for k, v in level_stats.items()},
+               **true_regret_stats(env.optimal_returns(played), returns_per_level, scores), **stats, **edit_stats}
         last_update = budget_used() >= 1.0
         if update % args.eval_interval == 0 or last_update:
             agent.eval()

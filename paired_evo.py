@@ -107,7 +107,9 @@ class Args:
 
     # Editing (SPEC 4, ACCEL)
     generator: Optional[str] = None
-    """new levels: random (the DR generator, maze and carracing default), empty rooms (maze) or easy (walker default)"""
+    """new levels: random (the DR generator, maze default), empty rooms (maze), easy (walker default) or sketch
+    (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
+    are continuous and cannot be edited)"""
     num_edits: Optional[int] = None
     """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
@@ -139,7 +141,7 @@ PAPER_DEFAULTS = {
     "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
                       normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=10000, temperature=0.3,
-                      staleness_coef=0.5, num_edits=3, generator="random", eval_episodes=10),
+                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
                    gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="huber",
                    normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=1000, temperature=0.1,
@@ -148,7 +150,7 @@ PAPER_DEFAULTS = {
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # PAIRED+Evo
 FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
-GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random",), "walker": ("random", "easy")}
+GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("sketch", "random"), "walker": ("random", "easy")}
 
 
 def fail(message: str) -> None:
@@ -240,6 +242,32 @@ def flexible_regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     p_max = np.array([np.max(r) if r else 0.0 for r in protagonist_returns])
     a_max = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
     return np.maximum(np.where(a_max > p_max, a_max - p_mean, p_max - a_mean), 0.0)
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
+    def average_ranks(x):
+        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
+
+    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
+    if ranks_a.std() == 0 or ranks_b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
+    """How well the curriculum's score tracks the true regret, where the env knows each level's best
+    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
+    the true regret (optimal return - the student's mean return over its completed episodes; a level
+    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
+    env without a solver."""
+    if optimal is None:
+        return {}
+    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
+    true_regret = optimal - achieved
+    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
+            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
+
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -512,6 +540,7 @@ def metric_names(env) -> list[str]:
     parent to child) among them."""
     return ["update", "env_steps", "student_steps", "sps", "replay", "protagonist_return", "antagonist_return",
             "protagonist_solved", "antagonist_solved", "regret", "buffer_size", "buffer_mean_score", *env.level_metric_names,
+            "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
             "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
             "protagonist_entropy", "antagonist_entropy", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
@@ -649,6 +678,7 @@ if __name__ == "__main__":
                "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
                "regret": float(scores.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()}, **edit_stats,
+               **true_regret_stats(env.optimal_returns(played), returns_of["protagonist"], scores),
                **{f"{name}_entropy": stats[name]["entropy"] for name in students if name in stats},
                **{k: v for k, v in stats.items() if k.startswith("kl_")}}
         last_update = global_step >= args.total_timesteps

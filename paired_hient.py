@@ -374,6 +374,32 @@ def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     antagonist = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
     return np.maximum(antagonist - protagonist, 0.0)
 
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
+    def average_ranks(x):
+        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
+
+    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
+    if ranks_a.std() == 0 or ranks_b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
+    """How well the curriculum's score tracks the true regret, where the env knows each level's best
+    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
+    the true regret (optimal return - the student's mean return over its completed episodes; a level
+    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
+    env without a solver."""
+    if optimal is None:
+        return {}
+    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
+    true_regret = optimal - achieved
+    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
+            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
+
+
 
 # ---------------------------------------------------------------------------------------------------
 # Run directory: metrics, checkpoints (atomic), level images, final evaluation.
@@ -382,7 +408,7 @@ def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics among them."""
     return ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
             "protagonist_solved", "antagonist_solved", "protagonist_entropy", "antagonist_entropy", "teacher_entropy",
-            *env.level_metric_names, "protagonist_value_loss", "antagonist_value_loss",
+            *env.level_metric_names, "optimal_return", "solvable", "true_regret", "score_true_regret_correlation", "protagonist_value_loss", "antagonist_value_loss",
             "teacher_value_loss", "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
             "time_teacher_update", "val_solved_rate", "val_return"]
 
@@ -505,6 +531,7 @@ if __name__ == "__main__":
                **{f"{name}_entropy": stats[name]["entropy"] for name in agents},
                **{f"{name}_value_loss": stats[name]["value_loss"] for name in agents},
                **{k: float(np.mean(v)) for k, v in level_stats.items()},
+               **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret),
                "time_teacher_rollout": time_teacher_rollout, "time_student_rollouts": times["rollouts"],
                "time_student_updates": times["updates"], "time_teacher_update": time_teacher_update}
         if update % args.eval_interval == 0 or update == num_updates:

@@ -92,6 +92,9 @@ class Args:
     # Prioritized level replay (SPEC 4)
     replay_prob: Optional[float] = None
     """probability of a replay update once the buffer is full enough (paper: 0.5; 0 gives DR)"""
+    generator: Optional[str] = None
+    """new levels: random (the DR generator) or, for carracing's PLR, sketch (12 random sketch cells, the
+    reference PLR's random teacher; default: sketch for carracing with replay, random otherwise)"""
     robust: bool = True
     """Robust PLR: no gradient step on new levels, only scoring (--no-robust: plain PLR)"""
     level_buffer_size: Optional[int] = None
@@ -133,6 +136,7 @@ PAPER_DEFAULTS = {
                    staleness_coef=0.5, eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random", "sketch"), "walker": ("random",)}
 
 
 def fail(message: str) -> None:
@@ -161,6 +165,10 @@ def resolve_args(args: Args) -> Args:
     for name, value in PAPER_DEFAULTS[args.env].items():
         if getattr(args, name) is None:
             setattr(args, name, value)
+    if args.generator is None:
+        args.generator = "sketch" if args.env == "carracing" and args.replay_prob > 0 else "random"
+    if args.generator not in GENERATORS[args.env]:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
     recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
@@ -219,6 +227,32 @@ def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_don
     per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
     scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
     return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
+
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
+    def average_ranks(x):
+        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
+
+    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
+    if ranks_a.std() == 0 or ranks_b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
+    """How well the curriculum's score tracks the true regret, where the env knows each level's best
+    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
+    the true regret (optimal return - the student's mean return over its completed episodes; a level
+    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
+    env without a solver."""
+    if optimal is None:
+        return {}
+    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
+    true_regret = optimal - achieved
+    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
+            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -354,8 +388,9 @@ class ReturnNormalizer:
 
 @torch.no_grad()
 def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
-    """Play one rollout on `levels` (one per copy). Returns advantages, returns and episode stats
-    (episode returns are the env's own rewards; training uses the normalized ones if `normalizer`).
+    """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
+    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
+    `normalizer`).
     Each step's data are kept in numpy arrays and lists and moved into `storage` once at the end: at
     a maze step's size, a dozen small tensor copies per step would cost more than the env step."""
     obs = env.reset(levels)
@@ -367,7 +402,7 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     starts = np.empty((args.num_steps, args.num_envs), bool)  # True where an episode starts at step t
     actions, logprobs, values = [], [], []
     ended = np.ones(args.num_envs, dtype=bool)
-    episode_returns, running_return = [], np.zeros(args.num_envs)
+    episode_returns, running_return = [[] for _ in range(args.num_envs)], np.zeros(args.num_envs)
     for step in range(args.num_steps):
         for k, v in obs.items():
             step_obs[k][step] = v
@@ -382,9 +417,9 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
         ended = terminated | truncated
         rewards[step] = reward if normalizer is None else normalizer(reward, ended)
         running_return += reward
-        if ended.any():
-            episode_returns.extend(running_return[ended].tolist())
-            running_return[ended] = 0.0
+        for i in np.nonzero(ended)[0]:
+            episode_returns[i].append(running_return[i])
+        running_return[ended] = 0.0
     next_value = agent.get_value(to_torch(obs, device), state, torch.from_numpy(ended).to(device)).cpu().numpy()
     for k, v in step_obs.items():
         storage.obs[k].copy_(torch.from_numpy(v))
@@ -475,6 +510,7 @@ def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics among them."""
     return ["update", "env_steps", "sps", "replay", "trained", "mean_return", "solved_rate", "episodes",
             "buffer_size", "buffer_mean_score", "mean_score", *env.level_metric_names,
+            "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
@@ -552,10 +588,12 @@ if __name__ == "__main__":
             replay_index = buffer.sample(args.num_envs, update, level_rng)
             levels = buffer.levels[replay_index]
         else:
-            levels = env.random_levels(args.num_envs, level_rng)
+            levels = env.level_generators[args.generator](args.num_envs, level_rng)
 
         agent.eval()
-        advantages, returns, episode_returns = collect_rollout(agent, env, levels, storage, args, device, normalizer)
+        played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
+        advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer)
+        episode_returns = [r for returns_of_level in returns_per_level for r in returns_of_level]
         scores = positive_value_loss(advantages, storage.dones, storage.final_dones).cpu().numpy()
         trained = replay or train_on_new_levels
         stats = {}
@@ -576,7 +614,8 @@ if __name__ == "__main__":
                "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else 0.0,
                "episodes": len(episode_returns), "buffer_size": len(buffer),
                "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
-               **{k: float(np.mean(v)) for k, v in level_stats.items()}, **stats}
+               **{k: float(np.mean(v)) for k, v in level_stats.items()},
+               **true_regret_stats(env.optimal_returns(played), returns_per_level, scores), **stats}
         if update % args.eval_interval == 0 or update == num_updates:
             agent.eval()
             validation = evaluate_all(agent, args.env, env.validation_levels, args.eval_episodes, args.seed, device)

@@ -1,10 +1,10 @@
-"""The CarRacing UPOMDP (SPEC section 2): gymnasium's car on tracks a teacher sketches.
+"""The CarRacing UPOMDP: gymnasium's car on tracks a teacher sketches.
 
 Everything an algorithm script needs: the level batch, the student env (one Box2D world per copy, the
 physics stepped in a loop over copies, the views rendered for all copies at once by
-envs/carracing_render.py), the teacher's MDP, the DR generator, mutation, level metrics, level images,
-the held-out tracks (F1 file, vanilla, built-ins; geometry in envs/carracing_tracks.py) and the
-paper's networks.
+envs/carracing_render.py), the teacher's MDP, the level generators (DR's and PLR's), mutation, level
+metrics, level images, the held-out tracks (F1 file, vanilla, built-ins; geometry in
+envs/carracing_tracks.py) and the paper's networks.
 
 Student observation: {"image": uint8 [N, 12, 96, 96]}, channels first: four RGB frames stacked oldest
 first (channels 3k..3k+2 are frame k, frame 3 the newest); an episode's first observation repeats its
@@ -30,7 +30,7 @@ from gymnasium.envs.box2d.car_dynamics import Car
 from torch import nn
 from torch.distributions import Beta, Categorical, Independent
 
-from envs.carracing_render import ROAD, STATE_SIZE, ViewRenderer, class_map, draw_trajectory, level_image, track_quads
+from envs.carracing_render import STATE_SIZE, ViewRenderer, class_map, draw_trajectory, level_image, track_quads
 from envs.carracing_tracks import (
     BUILTIN_FRAME_LIMITS,
     BUILTIN_TRACKS,
@@ -42,9 +42,11 @@ from envs.carracing_tracks import (
     Track,
     convert_formula1,
     load_f1_tracks,
+    random_control_points,
     track_from_cells,
     track_from_centreline,
     track_from_control_points,
+    track_from_unordered_points,
     track_metrics,
     vanilla_track,
 )
@@ -60,43 +62,62 @@ DT = 1.0 / FPS
 VELOCITY_ITERATIONS, POSITION_ITERATIONS = 6 * 30, 2 * 30  # gymnasium's world.Step arguments
 FRAME_PENALTY = 0.1
 OUTSIDE_REWARD = -100.0
-# Training-only shaping (SPEC 2, the reference's CarRacingWrapper).
+# Training-only shaping (the reference implementation's CarRacingWrapper.step).
 DONE_BONUS = 100.0
 GRASS_PENALTY = 0.05
+GRASS_GREEN_MEAN = 185.0  # "on grass": the frame's mean green channel exceeds this
 EARLY_STOP_WINDOW = 100
 EARLY_STOP_MEAN = -0.1
 F1_ENV_VAR = "CLEANUED_F1_TRACKS"
 
-# Level.track values: -1 = built from the cells; then a registry of fixed tracks whose indices never
-# move: vanilla (the level's seed draws the track), the built-ins, then the F1 file's tracks by name.
+# Level.track values: -1 = built from the cells; -2 = built from the continuous control points (DR's
+# tracks); then a registry of fixed tracks whose indices never move: vanilla (the level's seed draws
+# the track), the built-ins, then the F1 file's tracks by name.
 DESIGNED = -1
+CONTINUOUS = -2
 VANILLA = 0
 BUILTIN_NAMES = tuple(BUILTIN_TRACKS)
 FIRST_F1 = 1 + len(BUILTIN_NAMES)
-EXCLUDED_F1 = ("LagunaSeca",)  # in the reference's file, not in the paper's benchmark (SPEC 2)
+EXCLUDED_F1 = ("LagunaSeca",)  # in the reference's file, not in the paper's benchmark
 
 
 @dataclasses.dataclass
 class CarRacingLevels(LevelBatch):
-    """A batch of tracks: cells int64 [B, 12] (the sketch cells of a designed track, any order), track
-    int64 [B] (-1: designed from the cells; >= 0: a fixed track of the registry above) and seed
-    int64 [B] (vanilla's track seed; unused otherwise)."""
+    """A batch of tracks: cells int64 [B, 12] (the sketch cells of a designed track, any order),
+    points float64 [B, 12, 2] (the world control points of a continuous track, any order), track
+    int64 [B] (-1: designed from the cells; -2: continuous, from the points; >= 0: a fixed track of
+    the registry above) and seed int64 [B] (vanilla's track seed). Unused fields are zeros."""
 
     cells: np.ndarray
+    points: np.ndarray
     track: np.ndarray
     seed: np.ndarray
 
 
+def _levels(track: np.ndarray, cells=None, points=None, seeds=None) -> CarRacingLevels:
+    """A level batch of the given track kinds, the fields not given zeros."""
+    n = len(track)
+    return CarRacingLevels(
+        np.zeros((n, NUM_CONTROL_POINTS), np.int64) if cells is None else np.asarray(cells, dtype=np.int64),
+        np.zeros((n, NUM_CONTROL_POINTS, 2)) if points is None else np.asarray(points, dtype=np.float64),
+        np.asarray(track, dtype=np.int64),
+        np.zeros(n, np.int64) if seeds is None else np.asarray(seeds, dtype=np.int64),
+    )
+
+
 def designed_levels(cells: np.ndarray) -> CarRacingLevels:
     """Levels of designed tracks from sketch cells [B, 12]."""
-    cells = np.asarray(cells, dtype=np.int64)
-    return CarRacingLevels(cells, np.full(len(cells), DESIGNED, np.int64), np.zeros(len(cells), np.int64))
+    return _levels(np.full(len(cells), DESIGNED), cells=cells)
+
+
+def continuous_levels(points: np.ndarray) -> CarRacingLevels:
+    """Levels of tracks through continuous world control points [B, 12, 2]."""
+    return _levels(np.full(len(points), CONTINUOUS), points=points)
 
 
 def fixed_levels(track: int, seeds: np.ndarray) -> CarRacingLevels:
     """Levels of one registry track, one per seed (the seed only matters for vanilla)."""
-    n = len(seeds)
-    return CarRacingLevels(np.zeros((n, NUM_CONTROL_POINTS), np.int64), np.full(n, track, np.int64), np.asarray(seeds, np.int64))
+    return _levels(np.full(len(seeds), track), seeds=seeds)
 
 
 _NOTICE_SHOWN = False
@@ -122,7 +143,7 @@ class HeldOutTracks(dict):
 
 
 # ---------------------------------------------------------------------------------------------------
-# The teacher's MDP (SPEC 2): 12 steps, each one cell of the 10x10 sketch.
+# The teacher's MDP: 12 steps, each one cell of the 10x10 sketch.
 # ---------------------------------------------------------------------------------------------------
 class CarRacingTeacherMDP:
     """PAIRED's adversary for CarRacing over n tracks at once. Action a in [0, 100) is sketch cell
@@ -255,13 +276,14 @@ def build_world(env: CarRacingEnv, copy: int, track: Track) -> Box2D.b2World:
 # The student env.
 # ---------------------------------------------------------------------------------------------------
 class CarRacingEnv:
-    """The CarRacing UPOMDP over `num_envs` copies (SPEC 2). See the module docstring for the
-    observation and action. Reward per frame: +1000/N per newly visited tile, -0.1; leaving the
-    playfield: -100 (that frame's whole reward) and terminated; all tiles visited: terminated;
-    max_steps agent steps: truncated. With `training` True the reference's shaping is added per frame:
-    +100 on the frame an episode ends by itself (lap, playfield, time limit), -0.05 while the hull's
-    centre is off the road (from the track's geometry), and termination once the mean of the last 100
-    frame rewards (shaped, zeros before the episode's first frame) is <= -0.1."""
+    """The CarRacing UPOMDP over `num_envs` copies. See the module docstring for the observation and
+    action. Reward per frame: +1000/N per newly visited tile, -0.1; leaving the playfield: -100 (that
+    frame's whole reward) and terminated; all tiles visited: terminated; max_steps agent steps:
+    truncated. With `training` True the reference's shaping is added per frame: +100 on the frame an
+    episode ends by itself (lap, playfield, time limit), -0.05 on grass, and termination once the mean
+    of the last 100 frame rewards (shaped, zeros before the episode's first frame) is <= -0.1. "On
+    grass" is the reference's test on the view rendered after each physics frame: the mean of its
+    green channel over the whole 96x96 frame (indicator bar and car included) exceeds 185."""
 
     def __init__(self, num_envs: int = 16, seed: int = 0):
         if num_envs < 1:
@@ -275,7 +297,7 @@ class CarRacingEnv:
         self.Teacher = CarRacingTeacher
         self.solved_threshold = 900.0  # gymnasium's "solved" score
         self.level_metric_names = ("track_length", "total_curvature", "sharp_turns")
-        self.level_generators = {"random": self.random_levels}
+        self.level_generators = {"random": self.random_levels, "sketch": self.random_sketch_levels}
         self.training = True
         self.f1_tracks = _f1_tracks_from_environment()
         self.f1_names = tuple(sorted(self.f1_tracks)) if self.f1_tracks else ()
@@ -307,6 +329,8 @@ class CarRacingEnv:
         kind = int(levels.track[i])
         if kind == DESIGNED:
             return track_from_cells(levels.cells[i])
+        if kind == CONTINUOUS:
+            return track_from_unordered_points(levels.points[i])
         if kind == VANILLA:
             return vanilla_track(np.random.default_rng(int(levels.seed[i])))
         if kind not in self._fixed_track_cache:
@@ -325,6 +349,8 @@ class CarRacingEnv:
         kind = int(levels.track[i])
         if kind == DESIGNED:
             return (kind,) + tuple(sorted(levels.cells[i].tolist()))
+        if kind == CONTINUOUS:
+            return (kind,) + tuple(levels.points[i].reshape(-1).tolist())
         return (kind, int(levels.seed[i])) if kind == VANILLA else (kind,)
 
     # --- level generators, teacher, held-out set, mutation, metrics, rendering -------------------
@@ -333,8 +359,20 @@ class CarRacingEnv:
         return CarRacingTeacherMDP(self.rng)
 
     def random_levels(self, n: int, rng: np.random.Generator) -> CarRacingLevels:
-        """The DR generator: 12 distinct uniformly random sketch cells per track."""
-        return designed_levels(np.argsort(rng.random((n, NUM_CELLS)), axis=1)[:, :NUM_CONTROL_POINTS])
+        """The DR generator, the reference implementation's (dcd) random track (CarRacingBezier.reset
+        without control points): 12 continuous control points uniform in [0, 333.3)^2, redrawn while
+        crowded (carracing_tracks.random_control_points), through which the Bezier loop runs."""
+        return continuous_levels(random_control_points(n, rng))
+
+    def random_sketch_levels(self, n: int, rng: np.random.Generator) -> CarRacingLevels:
+        """PLR's (and Robust PLR's) new levels, as the reference implementation (dcd) makes them for PLR:
+        a uniformly random teacher (the adversary's act_random) picks each of the 12 sketch cells
+        uniformly from the 100, with replacement: a cell may repeat (one control point placed twice)."""
+        return designed_levels(rng.integers(0, NUM_CELLS, (n, NUM_CONTROL_POINTS)))
+
+    def optimal_returns(self, levels: CarRacingLevels) -> None:
+        """None: this env has no solver for a level's best return (the maze has one)."""
+        return None
 
     def draw_starts(self, levels: CarRacingLevels) -> CarRacingLevels:
         """The levels unchanged: their start has no random part (the maze draws a start direction)."""
@@ -342,8 +380,8 @@ class CarRacingEnv:
 
     def mutate(self, levels: CarRacingLevels, rng: np.random.Generator, num_edits: int = 3) -> CarRacingLevels:
         """Edited copies: `num_edits` times, one random control point of each designed track moves to a
-        random one of its up to 8 neighbouring cells that is on the grid and free (it stays if none
-        is), so all 12 cells stay distinct. Fixed tracks are returned unchanged."""
+        random one of its up to 8 neighbouring cells that is on the grid and not in use (it stays if
+        none is), so no cell newly repeats. Continuous (DR) and fixed tracks are returned unchanged."""
         child = levels.copy()
         n = len(child)
         steps = np.array([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)])
@@ -439,9 +477,10 @@ class CarRacingEnv:
         self.history = np.zeros((n, EARLY_STOP_WINDOW))
         self.history_pos = np.zeros(n, dtype=np.int64)
         self.frames = np.zeros((n, 3 * FRAME_STACK, STATE_SIZE, STATE_SIZE), dtype=np.uint8)
+        self.classes = np.zeros((n, STATE_SIZE, STATE_SIZE), dtype=np.uint8)  # each copy's latest view
         everyone = np.ones(n, dtype=bool)
         self._restart(everyone)
-        self._observe(everyone)
+        self._observe(everyone, everyone)
         return {"image": self.frames.copy()}
 
     def step(self, actions: np.ndarray):
@@ -475,8 +514,10 @@ class CarRacingEnv:
             ended = outside | lap
             if self.training:
                 frame_reward += DONE_BONUS * ended
-                off_road = self.renderer.classes_at(x, y)[active] != ROAD
-                frame_reward -= GRASS_PENALTY * off_road
+                # The reference renders the view after every physics frame and tests it for grass.
+                self.classes[active] = self.renderer.classes(self._car_states(active), active)
+                on_grass = self.renderer.green_means(self.classes[active]) > GRASS_GREEN_MEAN
+                frame_reward -= GRASS_PENALTY * on_grass
                 slot = self.history_pos[active]
                 self.history[active, slot] = frame_reward
                 self.history_pos[active] = (slot + 1) % EARLY_STOP_WINDOW
@@ -493,7 +534,8 @@ class CarRacingEnv:
         done = terminated | truncated
         if done.any():
             self._restart(done)
-        self._observe(done)
+        # Training rendered every copy's last frame already: only restarted copies need a new view.
+        self._observe(done if self.training else np.ones(n, dtype=bool), done)
         return {"image": self.frames.copy()}, reward.astype(np.float32), terminated, truncated, {}
 
     def _restart(self, which: np.ndarray) -> None:
@@ -514,34 +556,43 @@ class CarRacingEnv:
         self.history[which] = 0.0
         self.history_pos[which] = 0
 
-    def _car_states(self) -> dict:
-        """The car quantities the view shows, one row per copy (wheel poses in the hull's frame)."""
-        n = self.num_envs
+    def _car_states(self, copies: np.ndarray | None = None) -> dict:
+        """The car quantities the view shows, one row per copy of `copies` (indices; all copies by
+        default), wheel poses in the hull's frame."""
+        copies = np.arange(self.num_envs) if copies is None else copies
+        n = len(copies)
         state = {key: np.zeros(n) for key in ("x", "y", "angle", "speed", "steering", "angular_velocity")}
-        state.update(wheel_xy=np.zeros((n, 4, 2)), wheel_angle=np.zeros((n, 4)), wheel_phase=np.zeros((n, 4)), wheel_omega=np.zeros((n, 4)))
-        for i, car in enumerate(self.cars):
+        state.update(velocity=np.zeros((n, 2)), wheel_xy=np.zeros((n, 4, 2)))
+        state.update({key: np.zeros((n, 4)) for key in ("wheel_angle", "wheel_phase", "wheel_omega")})
+        for row, i in enumerate(copies.tolist()):
+            car = self.cars[i]
             hull = car.hull
             hx, hy = hull.position
             angle = hull.angle
             cos, sin = math.cos(angle), math.sin(angle)
             vx, vy = hull.linearVelocity
-            state["x"][i], state["y"][i], state["angle"][i] = hx, hy, angle
-            state["speed"][i] = math.hypot(vx, vy)
-            state["angular_velocity"][i] = hull.angularVelocity
-            state["steering"][i] = car.wheels[0].joint.angle
+            state["x"][row], state["y"][row], state["angle"][row] = hx, hy, angle
+            state["velocity"][row] = vx, vy
+            state["speed"][row] = math.hypot(vx, vy)
+            state["angular_velocity"][row] = hull.angularVelocity
+            state["steering"][row] = car.wheels[0].joint.angle
             for k, wheel in enumerate(car.wheels):
                 wx, wy = wheel.position
                 dx, dy = wx - hx, wy - hy
-                state["wheel_xy"][i, k] = (cos * dx + sin * dy, -sin * dx + cos * dy)
-                state["wheel_angle"][i, k] = wheel.angle - angle
-                state["wheel_phase"][i, k] = wheel.phase
-                state["wheel_omega"][i, k] = wheel.omega
+                state["wheel_xy"][row, k] = (cos * dx + sin * dy, -sin * dx + cos * dy)
+                state["wheel_angle"][row, k] = wheel.angle - angle
+                state["wheel_phase"][row, k] = wheel.phase
+                state["wheel_omega"][row, k] = wheel.omega
         return state
 
-    def _observe(self, fresh: np.ndarray) -> None:
-        """Render every copy's view and push it on its frame stack; copies starting an episode
-        (`fresh`) get their first frame in all four slots."""
-        view = self.renderer.render(self._car_states())
+    def _observe(self, stale: np.ndarray, fresh: np.ndarray) -> None:
+        """Render the views of the `stale` copies (the others' latest views are current) and push every
+        copy's view on its frame stack; copies starting an episode (`fresh`) get their first frame in
+        all four slots."""
+        copies = np.nonzero(stale)[0]
+        if len(copies):
+            self.classes[copies] = self.renderer.classes(self._car_states(copies), copies)
+        view = self.renderer.colours(self.classes)
         self.frames[:, :-3] = self.frames[:, 3:]
         self.frames[:, -3:] = view
         if fresh.any():
@@ -549,12 +600,22 @@ class CarRacingEnv:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Networks (SPEC 2), with the calling convention of DESIGN.md.
+# Networks, with the calling convention of envs/nets.py.
 # ---------------------------------------------------------------------------------------------------
+class BetaPolicy(Independent):
+    """The student's policy: independent Betas over the action dims (build it as BetaPolicy(Beta(alpha,
+    beta), 1)). log_prob and a KL (behaviour cloning) sum over the dims, as any Independent; entropy()
+    is their mean, the entropy the reference implementation's (dcd) PPO loss weighs with the entropy
+    coefficient (CarRacingNetwork.evaluate_actions: Beta.entropy().mean())."""
+
+    def entropy(self) -> torch.Tensor:
+        return self.base_dist.entropy().mean(-1)
+
+
 class CarRacingStudent(FeedForwardActorCritic):
     """Conv 12->8 (4, s2) -> 16 (3, s2) -> 32 (3, s2) -> 64 (3, s2) -> 128 (3, s1) -> 256 (3, s1), ReLU,
     on the 96x96 stack (pixels x/128 - 1) -> 256 features; actor FC 100 -> alpha, beta = 1 + softplus
-    (an Independent Beta over the 3 action dims); critic FC 100 -> 1."""
+    (a BetaPolicy over the 3 action dims); critic FC 100 -> 1."""
 
     def __init__(self):
         super().__init__()
@@ -570,13 +631,13 @@ class CarRacingStudent(FeedForwardActorCritic):
         self.critic = nn.Sequential(layer_init(nn.Linear(256, 100)), nn.ReLU(), layer_init(nn.Linear(100, 1), gain=1.0))
 
     def dist_and_value(self, obs: dict, state=None, done=None):
-        """-> Independent Beta over the 3 action dims, value [B]."""
+        """-> BetaPolicy over the 3 action dims, value [B]."""
         pixels = obs["image"].float().mul_(1.0 / 128.0).sub_(1.0)  # in place: one 96x96x12 float copy, not three
         features = self.conv(pixels)
         hidden = self.actor(features)
         alpha = 1.0 + nn.functional.softplus(self.alpha(hidden))
         beta = 1.0 + nn.functional.softplus(self.beta(hidden))
-        return Independent(Beta(alpha, beta), 1), self.critic(features).squeeze(-1)
+        return BetaPolicy(Beta(alpha, beta), 1), self.critic(features).squeeze(-1)
 
     def sample(self, dist):
         """A Beta sample kept strictly inside (0, 1), so its log-probability stays finite."""

@@ -1,13 +1,15 @@
-"""The CarRacing renderer (SPEC 2: gymnasium's scene), numpy-vectorized over env copies.
+"""The CarRacing renderer (gymnasium's scene, the reference implementation's camera), numpy-vectorized
+over env copies.
 
 Gymnasium draws about 800 polygons per frame with pygame on a 1000x800 surface and scales it down to
 96x96; here each level's track is rasterized once, at reset, into a top-down map of classes (outside,
 grass, grass patch, road, white and red kerb) at PIXELS_PER_UNIT cells per world unit. An observation is
-then one nearest-neighbour gather of the 96x96 window around each car, rotated with the car as
-gymnasium's camera (the hull points up, the car three quarters down the image, gymnasium's zoom and the
-same non-square pixel footprint its 1000x800 -> 96x96 scaling gives), plus the car (hull, wheels with
-their rotating stripe) and the indicator bar (true speed, four ABS sensors, steering, gyroscope), drawn
-as gymnasium draws them, and one palette lookup. Pixels are lit when their centre is inside a shape.
+then one nearest-neighbour gather of the 96x96 window around each car, turned as the reference
+implementation's (dcd) camera turns (with the car's direction of travel, see camera_angle; the car three
+quarters down the image, gymnasium's zoom and the same non-square pixel footprint its 1000x800 -> 96x96
+scaling gives), plus the car (hull, wheels with their rotating stripe) and the indicator bar (true
+speed, four ABS sensors, steering, gyroscope), drawn as gymnasium draws them, and one palette lookup.
+Pixels are lit when their centre is inside a shape.
 
 Left out of gymnasium's picture: the zoom animation of the first second (the reference disables it),
 skid marks (not drawn in state pixels), the score digits in the bar, and the 1-2% brightness
@@ -71,9 +73,14 @@ PALETTE = np.array(
 )
 PALETTE_CHANNELS = np.ascontiguousarray(PALETTE.T)  # [3, classes]: one lookup per channel gives CHW
 
-# The car's neighbourhood in the image, where wheels are drawn (rows 60-83, columns 40-55).
-WHEEL_ROWS = slice(60, 84)
-WHEEL_COLUMNS = slice(40, 56)
+GREEN_LEVELS = PALETTE[:, 1].astype(np.float64)  # each class's green channel
+
+# The car's neighbourhood in the image, where wheels are drawn however they are turned (rows 60-83,
+# columns 40-55; they reach 2.6 world units from the car's centre: 5 rows or 4 columns).
+CAR_ROWS = slice(60, 84)
+CAR_COLUMNS = slice(40, 56)
+# The reference's camera follows the direction of travel above this speed (world units per second).
+CAMERA_SPEED = 0.5
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -197,9 +204,19 @@ def draw_trajectory(image: np.ndarray, xy: np.ndarray, playfield: float, colour=
 # ---------------------------------------------------------------------------------------------------
 # The student's view.
 # ---------------------------------------------------------------------------------------------------
+def camera_angle(hull_angle: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The angle the view is turned to [N], as a hull angle (the view shows a hull at this angle
+    pointing up), by the reference implementation's (dcd) rule in CarRacingBezier.render: its camera
+    rotation is atan2(vx, vy) (the direction of the hull's velocity [N, 2] points up) when the hull's
+    speed |v| exceeds 0.5, else -hull angle (the hull points up). Rotation r is hull angle -r, so the
+    angle is atan2(-vx, vy) or the hull's. (Gymnasium's camera always follows the hull.)"""
+    vx, vy = velocity[:, 0], velocity[:, 1]
+    return np.where(np.hypot(vx, vy) > CAMERA_SPEED, np.arctan2(-vx, vy), hull_angle)
+
+
 def _pixel_offsets() -> tuple[np.ndarray, np.ndarray]:
-    """World offsets (across, along) [96, 96] of each state pixel's centre from the car, in the car's
-    frame (along = the hull's forward axis, up in the image; across = its right)."""
+    """World offsets (across, along) [96, 96] of each state pixel's centre from the car, in the
+    camera's frame (along = up in the image; across = to its right)."""
     centres = np.arange(STATE_SIZE) + 0.5
     across = (centres - CAR_COLUMN) * UNITS_PER_PIXEL_X
     along = (CAR_ROW - centres) * UNITS_PER_PIXEL_Y
@@ -218,17 +235,20 @@ def _inside_convex(px: np.ndarray, py: np.ndarray, polygon) -> np.ndarray:
 
 
 class ViewRenderer:
-    """Renders the 96x96 views of all copies at once from their class maps and car states."""
+    """Renders the 96x96 views of env copies at once from their class maps and car states: `classes`
+    gives class images, `colours` turns them into RGB views (`render` does both) and `green_means`
+    gives the mean green of each view (the reference's grass test)."""
 
     def __init__(self):
         self.across, self.along = _pixel_offsets()
         self.across_flat = (self.across.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)  # in map cells
         self.along_flat = (self.along.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)
-        self.hull_mask = np.zeros((STATE_SIZE, STATE_SIZE), dtype=bool)
-        for polygon in HULL_POLYGONS:
-            self.hull_mask |= _inside_convex(self.across, self.along, np.array(polygon) * CAR_SIZE)
-        self.wheel_across = self.across[WHEEL_ROWS, WHEEL_COLUMNS]
-        self.wheel_along = self.along[WHEEL_ROWS, WHEEL_COLUMNS]
+        self.hull_polygons = [np.array(polygon, dtype=np.float64) * CAR_SIZE for polygon in HULL_POLYGONS]
+        reach = max(np.hypot(polygon[:, 0], polygon[:, 1]).max() for polygon in self.hull_polygons)
+        self.hull_pixels = np.nonzero(np.hypot(self.across, self.along) <= reach)  # the hull's, however turned
+        self.hull_across, self.hull_along = self.across[self.hull_pixels], self.along[self.hull_pixels]
+        self.car_across = self.across[CAR_ROWS, CAR_COLUMNS]
+        self.car_along = self.along[CAR_ROWS, CAR_COLUMNS]
         self.bar_centres = np.arange(STATE_SIZE) + 0.5
 
     def set_maps(self, maps: list[np.ndarray], playfields: np.ndarray) -> None:
@@ -247,54 +267,81 @@ class ViewRenderer:
         self.width = np.array([m.shape[0] for m in maps], dtype=np.int32)
         self.playfield = np.asarray(playfields, dtype=np.float64)
 
-    def _map_index(self, x: np.ndarray, y: np.ndarray, angle: np.ndarray, across: np.ndarray, along: np.ndarray) -> np.ndarray:
-        """Flat indices into the stored maps [N, P] of the points at offsets (across, along) [P] (map
-        cells) in the frame of a car at x, y with hull angle `angle` [N] (copy i's points in copy i's
-        map). The
-        centre is clamped to 5 units beyond the playfield (rendered cars are inside it), so every
-        coordinate is positive and truncation is the floor."""
-        playfield = self.playfield
+    def _map_index(self, copies: np.ndarray, x: np.ndarray, y: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        """Flat indices into the stored maps [len(copies), 96 * 96] of the view's pixels for copies
+        whose cameras are at x, y turned to `angle` (camera_angle) [len(copies)], each in its copy's
+        map. The centre is clamped to 5 units beyond the playfield (rendered cars are inside it), so
+        every coordinate is positive and truncation is the floor."""
+        playfield = self.playfield[copies]
         cx = np.clip(x, -playfield - 5, playfield + 5)
         cy = np.clip(y, -playfield - 5, playfield + 5)
         col0 = ((cx + playfield) * PIXELS_PER_UNIT + MAP_MARGIN).astype(np.float32)[:, None]
         row0 = ((cy + playfield) * PIXELS_PER_UNIT + MAP_MARGIN).astype(np.float32)[:, None]
         cos = np.cos(angle).astype(np.float32)[:, None]
         sin = np.sin(angle).astype(np.float32)[:, None]
-        col = (col0 + cos * across - sin * along).astype(np.int32)
-        row = (row0 + sin * across + cos * along).astype(np.int32)
-        row *= self.width[:, None]
+        col = (col0 + cos * self.across_flat - sin * self.along_flat).astype(np.int32)
+        row = (row0 + sin * self.across_flat + cos * self.along_flat).astype(np.int32)
+        row *= self.width[copies, None]
         row += col
-        row += self.offset[:, None]
+        row += self.offset[copies, None]
         return row
 
-    def classes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The class under world point (x[i], y[i]) in copy i's map [N] (the grass penalty's geometry)."""
-        origin = np.zeros(1, np.float32)
-        return self.flat[self._map_index(x, y, np.zeros(len(x)), origin, origin)[:, 0]]
-
-    def render(self, car: dict) -> np.ndarray:
-        """uint8 [N, 3, 96, 96] views from car states (arrays with a leading copy axis): hull x, y,
-        angle; wheel_xy [N, 4, 2] and wheel_angle [N, 4] relative to the hull (in its frame),
-        wheel_phase [N, 4], speed, wheel_omega [N, 4], steering (front-left joint angle), angular
+    def classes(self, car: dict, copies: np.ndarray) -> np.ndarray:
+        """uint8 class images [len(copies), 96, 96] of the views of the given copies (indices) from
+        their car states (arrays with one row per copy, in the order of `copies`): hull x, y, angle,
+        velocity [., 2]; wheel_xy [., 4, 2] and wheel_angle [., 4] relative to the hull (in its frame),
+        wheel_phase [., 4], speed, wheel_omega [., 4], steering (front-left joint angle), angular
         velocity."""
-        count = len(car["x"])
-        index = self._map_index(car["x"], car["y"], car["angle"], self.across_flat, self.along_flat)
-        classes = self.flat[index].reshape(count, STATE_SIZE, STATE_SIZE)
-        self._draw_wheels(classes, car)
-        classes[:, self.hull_mask] = HULL
+        count = len(copies)
+        camera = camera_angle(car["angle"], car["velocity"])
+        classes = self.flat[self._map_index(copies, car["x"], car["y"], camera)].reshape(count, STATE_SIZE, STATE_SIZE)
+        tilt = car["angle"] - camera  # the hull's angle in the view
+        self._draw_wheels(classes, car, tilt)
+        self._draw_hull(classes, tilt)
         self._draw_indicators(classes, car)
+        return classes
+
+    @staticmethod
+    def colours(classes: np.ndarray) -> np.ndarray:
+        """uint8 RGB views [N, 3, 96, 96] of class images [N, 96, 96]."""
         lookup = classes.astype(np.intp)
-        view = np.empty((count, 3, STATE_SIZE, STATE_SIZE), dtype=np.uint8)
+        view = np.empty((len(classes), 3, STATE_SIZE, STATE_SIZE), dtype=np.uint8)
         for channel in range(3):
             view[:, channel] = PALETTE_CHANNELS[channel][lookup]
         return view
 
-    def _draw_wheels(self, classes: np.ndarray, car: dict) -> None:
-        """Each wheel as gymnasium draws it: a black rectangle at the wheel's pose, then a grey stripe
-        between heights R cos(phase) and R cos(phase + 1.2) while that part faces the viewer."""
-        dx = self.wheel_across[None, None] - car["wheel_xy"][:, :, 0, None, None]
-        dy = self.wheel_along[None, None] - car["wheel_xy"][:, :, 1, None, None]
-        cos, sin = np.cos(car["wheel_angle"])[..., None, None], np.sin(car["wheel_angle"])[..., None, None]
+    @staticmethod
+    def green_means(classes: np.ndarray) -> np.ndarray:
+        """The mean of the green channel over the whole RGB view of each class image [N]."""
+        return np.take(GREEN_LEVELS, classes).mean(axis=(1, 2))
+
+    def render(self, car: dict) -> np.ndarray:
+        """uint8 RGB views [N, 3, 96, 96] of all copies (car states as for `classes`)."""
+        return self.colours(self.classes(car, np.arange(len(car["x"]))))
+
+    def _draw_hull(self, classes: np.ndarray, tilt: np.ndarray) -> None:
+        """The hull's polygons, turned by `tilt` [N] (the hull's angle in the view)."""
+        cos, sin = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
+        u = cos * self.hull_across + sin * self.hull_along  # the pixels in the hull's frame
+        v = -sin * self.hull_across + cos * self.hull_along
+        hull = np.zeros(u.shape, dtype=bool)
+        for polygon in self.hull_polygons:
+            hull |= _inside_convex(u, v, polygon)
+        rows, columns = self.hull_pixels
+        classes[:, rows, columns] = np.where(hull, HULL, classes[:, rows, columns])
+
+    def _draw_wheels(self, classes: np.ndarray, car: dict, tilt: np.ndarray) -> None:
+        """Each wheel as gymnasium draws it: a black rectangle at the wheel's pose (turned by `tilt`
+        [N], the hull's angle in the view), then a grey stripe between heights R cos(phase) and
+        R cos(phase + 1.2) while that part faces the viewer."""
+        cos_tilt, sin_tilt = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
+        hull_x, hull_y = car["wheel_xy"][:, :, 0], car["wheel_xy"][:, :, 1]
+        wheel_x = cos_tilt * hull_x - sin_tilt * hull_y  # the wheels' centres in the view's frame
+        wheel_y = sin_tilt * hull_x + cos_tilt * hull_y
+        dx = self.car_across[None, None] - wheel_x[:, :, None, None]
+        dy = self.car_along[None, None] - wheel_y[:, :, None, None]
+        angle = car["wheel_angle"] + tilt[:, None]
+        cos, sin = np.cos(angle)[..., None, None], np.sin(angle)[..., None, None]
         u = dx * cos + dy * sin
         v = -dx * sin + dy * cos
         wheel = (np.abs(u) <= WHEEL_HALF_WIDTH) & (np.abs(v) <= WHEEL_HALF_LENGTH)
@@ -306,7 +353,7 @@ class ViewRenderer:
         low = (np.minimum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
         high = (np.maximum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
         stripe = shown[..., None, None] & (np.abs(u) <= WHEEL_HALF_WIDTH) & (v >= low) & (v <= high)
-        window = classes[:, WHEEL_ROWS, WHEEL_COLUMNS]
+        window = classes[:, CAR_ROWS, CAR_COLUMNS]
         window[wheel.any(axis=1)] = WHEEL
         window[stripe.any(axis=1)] = WHEEL_STRIPE
 

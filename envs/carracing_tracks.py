@@ -1,5 +1,5 @@
-"""CarRacing tracks (SPEC section 2): Bezier tracks from sketch cells, the F1 tracks, gymnasium's own
-random track, three built-in held-out tracks, kerbs and track metrics. Pure geometry, no physics.
+"""CarRacing tracks: Bezier tracks from sketch cells or random control points, the F1 tracks, gymnasium's
+own random track, three built-in held-out tracks, kerbs and track metrics. Pure geometry, no physics.
 
 A track is a closed centreline in driving order: point k is followed by point k + 1 (and the last by
 the first), the car starts on point 0 facing point 1. Each point also carries `beta`, the angle of the
@@ -24,7 +24,7 @@ import numpy as np
 SCALE = 6.0  # gymnasium's track scale
 TRACK_RAD = 900 / SCALE
 PLAYFIELD = 2000 / SCALE  # half-size of the playfield of designed tracks and vanilla
-F1_PLAYFIELD = 3000 / SCALE  # half-size for the F1 tracks (SPEC 2)
+F1_PLAYFIELD = 3000 / SCALE  # half-size for the F1 tracks (the reference's bounds of 3000)
 TRACK_WIDTH = 40 / SCALE  # half-width of the road
 TRACK_DETAIL_STEP = 21 / SCALE
 TRACK_TURN_RATE = 0.31
@@ -38,6 +38,7 @@ SKETCH_RATIO = PLAYFIELD / SKETCH_SIZE  # 33.33 world units per sketch cell
 POINTS_PER_SEGMENT = 40
 BEZIER_RAD = 0.2
 BEZIER_EDGY = 0.2
+MAX_POINT_REDRAWS = 200  # DR's control points: the reference's limit of redraws of a crowded set
 
 DEFAULT_FRAME_LIMIT = 2000  # an F1 track without a frame limit in the meta json
 VANILLA_FRAME_LIMIT = 1000
@@ -122,7 +123,7 @@ def kerb_flags(xy: np.ndarray, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 # ---------------------------------------------------------------------------------------------------
-# Bezier tracks from the teacher's sketch cells (SPEC 2).
+# Bezier tracks from the teacher's sketch cells and from DR's random control points.
 # ---------------------------------------------------------------------------------------------------
 def cell_points(cells: np.ndarray) -> np.ndarray:
     """World points of sketch cells: cell a is column i = a % 10, row j = a // 10 of the sketch
@@ -173,14 +174,46 @@ def reference_driving_order(xy: np.ndarray) -> np.ndarray:
     return np.roll(xy[::-1], 1, axis=0)
 
 
+def track_from_unordered_points(points: np.ndarray) -> Track:
+    """The reference's Bezier track through control points given in any order: sorted around their
+    centroid, closed Bezier loop (12 * 40 points), driving order as the reference's, centred on the
+    bounding box. A repeated point makes a segment of length 0, whose points make_track drops."""
+    return make_track(centre_on_bounding_box(reference_driving_order(bezier_loop(sort_around_centroid(points)))), PLAYFIELD)
+
+
 def track_from_cells(cells: np.ndarray) -> Track:
-    """The designed track of 12 sketch cells (SPEC 2): world points sorted around their centroid,
-    closed Bezier loop (12 * 40 points), driving order as the reference's, centred on the bounding box."""
+    """The designed track of 12 sketch cells (any order; a cell may repeat, as in the levels of the
+    reference's random teacher), through their world points."""
     cells = np.sort(np.asarray(cells))
-    if cells.shape != (NUM_CONTROL_POINTS,) or cells[0] < 0 or cells[-1] >= SKETCH_SIZE**2 or np.any(np.diff(cells) == 0):
-        raise ValueError(f"a designed track needs {NUM_CONTROL_POINTS} distinct sketch cells in [0, {SKETCH_SIZE**2}), got {cells.tolist()}")
-    points = sort_around_centroid(cell_points(cells))
-    return make_track(centre_on_bounding_box(reference_driving_order(bezier_loop(points))), PLAYFIELD)
+    if cells.shape != (NUM_CONTROL_POINTS,) or cells[0] < 0 or cells[-1] >= SKETCH_SIZE**2 or len(np.unique(cells)) < 3:
+        raise ValueError(f"a designed track needs {NUM_CONTROL_POINTS} sketch cells in [0, {SKETCH_SIZE**2}), "
+                         f"at least 3 of them different, got {cells.tolist()}")
+    return track_from_unordered_points(cell_points(cells))
+
+
+def random_control_points(n: int, rng: np.random.Generator) -> np.ndarray:
+    """n sets of 12 control points [n, 12, 2] for DR's tracks, drawn as the reference implementation
+    (dcd) draws them (bezier.get_random_points with scale = playfield): uniform in the unit square,
+    the whole set drawn again while two neighbours in the order around the centroid are closer than
+    0.7 / 12 by the reference's measure |dx + dy| (its formula, not the Euclidean distance; the last
+    point's step back to the first is not checked), at most 200 times (the 201st draw is kept as it is),
+    then scaled to [0, PLAYFIELD)."""
+    points = rng.random((n, NUM_CONTROL_POINTS, 2))
+    for _ in range(MAX_POINT_REDRAWS):
+        crowded = ~well_spaced(points)
+        if not crowded.any():
+            break
+        points[crowded] = rng.random((int(crowded.sum()), NUM_CONTROL_POINTS, 2))
+    return points * PLAYFIELD
+
+
+def well_spaced(points: np.ndarray) -> np.ndarray:
+    """For point sets [n, P, 2]: every step between neighbours around the centroid has |dx + dy| >=
+    0.7 / P (the reference's test in bezier.get_random_points), per set [n]."""
+    d = points - points.mean(axis=1, keepdims=True)
+    order = np.argsort(np.arctan2(d[..., 0], d[..., 1]), axis=1)
+    ordered = np.take_along_axis(points, order[..., None], axis=1)
+    return np.all(np.abs(np.diff(ordered, axis=1).sum(axis=2)) >= 0.7 / points.shape[1], axis=1)
 
 
 def track_from_centreline(xy: np.ndarray, playfield: float = F1_PLAYFIELD) -> Track:

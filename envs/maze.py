@@ -175,6 +175,54 @@ def shortest_path_lengths(levels: MazeLevels) -> np.ndarray:
     return lengths
 
 
+def shifted(cells: np.ndarray, dx: int, dy: int) -> np.ndarray:
+    """cells [B, H, W] moved by (dx, dy): out[:, y + dy, x + dx] = cells[:, y, x], edges dropped."""
+    out = np.zeros_like(cells)
+    h, w = cells.shape[1:]
+    out[:, max(dy, 0) : h + min(dy, 0), max(dx, 0) : w + min(dx, 0)] = cells[:, max(-dy, 0) : h + min(-dy, 0), max(-dx, 0) : w + min(-dx, 0)]
+    return out
+
+
+def fewest_actions(walls: np.ndarray, goal: np.ndarray, agent: np.ndarray, agent_dir: np.ndarray, limit: int) -> np.ndarray:
+    """The fewest actions (turns included) from each start position and direction to the goal, by BFS
+    over (direction, cell) for all levels at once; limit + 1 where the goal takes more than `limit`
+    actions or cannot be reached. walls [B, H, W]; goal, agent [B, 2] as (x, y); agent_dir [B] in 0-3."""
+    n = len(walls)
+    index = np.arange(n)
+    free = ~walls
+    reached = np.zeros((n, 4) + walls.shape[1:], dtype=bool)
+    reached[index, agent_dir, agent[:, 1], agent[:, 0]] = True
+    frontier = reached.copy()
+    actions = np.full(n, limit + 1, dtype=np.int64)
+    active = np.ones(n, dtype=bool)
+    for step in range(1, limit + 1):
+        turned = np.roll(frontier, 1, axis=1) | np.roll(frontier, -1, axis=1)
+        moved = np.stack([shifted(frontier[:, d], *DIRECTION_VECTORS[d]) & free for d in range(4)], axis=1)
+        frontier = (turned | moved) & ~reached
+        reached |= frontier
+        hit = active & moved[index, :, goal[:, 1], goal[:, 0]].any(axis=1)
+        actions[hit] = step
+        active &= ~hit & frontier.reshape(n, -1).any(axis=1)
+        if not active.any():
+            break
+    return actions
+
+
+def optimal_returns(levels: MazeLevels, max_steps: int = TRAIN_MAX_STEPS) -> np.ndarray:
+    """The best return the student can get on each level: 1 - 0.9 * n / max_steps, n the fewest actions
+    from the start position and direction to the goal, and 0 if the goal is out of reach within
+    max_steps. A level whose start direction is random (not yet drawn) gets the mean over the 4
+    directions, its expected optimum."""
+    random = levels.agent_dir < 0
+    rows = np.concatenate([np.arange(len(levels)), np.repeat(np.nonzero(random)[0], 4)])
+    directions = np.concatenate([np.where(random, 0, levels.agent_dir), np.tile(np.arange(4), int(random.sum()))])
+    actions = fewest_actions(levels.walls[rows], levels.goal[rows], levels.agent[rows], directions.astype(np.int64), max_steps)
+    best = np.where(actions <= max_steps, 1.0 - 0.9 * actions / max_steps, 0.0)
+    per_level = best[: len(levels)].copy()
+    per_level[random] = best[len(levels) :].reshape(-1, 4).mean(axis=1)
+    return per_level
+
+
 def level_metrics(levels: MazeLevels) -> dict[str, np.ndarray]:
     lengths = shortest_path_lengths(levels)
     h, w = levels.size
@@ -314,6 +362,11 @@ class MazeEnv:
         random = drawn.agent_dir < 0
         drawn.agent_dir[random] = self.rng.integers(0, 4, int(random.sum()))
         return drawn
+
+    def optimal_returns(self, levels: MazeLevels) -> np.ndarray:
+        """The best achievable return of each level from its start (see `optimal_returns`): with the
+        student's expected return, it gives the level's true regret."""
+        return optimal_returns(levels, TRAIN_MAX_STEPS)
 
     def test_levels(self) -> dict[str, HeldOutLevel]:
         from envs.maze_heldout import held_out_mazes

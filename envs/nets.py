@@ -295,9 +295,11 @@ class FeedForwardActorCritic(nn.Module):
     """The same calling convention for a feed-forward net (CarRacing, walker, their teachers).
 
     A subclass defines `dist_and_value(obs) -> (distribution, value [B])`. For a continuous action the
-    distribution is an `Independent` over the action's dimensions, so `log_prob`, `entropy` and the BC
-    KL are sums over them (SPEC 4, BC). There is no state: `initial_state` is None and `state` and
-    `done` are ignored, so PPO may draw minibatches from single samples.
+    distribution is an `Independent` over the action's dimensions, so `log_prob` and the BC KL are sums
+    over them. The entropy (the PPO loss's) is the distribution's own `entropy()`, as each net's
+    reference reduces it: the walker's Gaussian sums over the dimensions, CarRacing's Beta averages
+    (its BetaPolicy). There is no state: `initial_state` is None and `state` and `done` are ignored,
+    so PPO may draw minibatches from single samples.
     """
 
     is_recurrent = False

@@ -906,6 +906,10 @@ class WalkerEnv:
         """PAIRED's adversary MDP, its noise drawn from the env's rng."""
         return WalkerTeacherMDP(self.rng)
 
+    def optimal_returns(self, levels: WalkerLevels) -> None:
+        """None: this env has no solver for a level's best return (the maze has one)."""
+        return None
+
     def draw_starts(self, levels: WalkerLevels) -> WalkerLevels:
         """The levels unchanged: their start has no random part (the maze draws a start direction)."""
         return levels

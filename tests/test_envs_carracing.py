@@ -60,7 +60,7 @@ def test_designed_track_is_a_closed_loop_of_480_tiles():
     assert steps.min() > 1e-3 and steps.max() < 20
     assert np.allclose((track.xy.min(axis=0) + track.xy.max(axis=0)) / 2, 0.0)  # centred on the box
     assert np.abs(track.xy).max() < PLAYFIELD
-    with pytest.raises(ValueError, match="distinct"):
+    with pytest.raises(ValueError, match="at least 3"):
         track_from_cells(np.array([0] * 12))
 
 
@@ -223,7 +223,8 @@ def test_leaving_the_playfield_in_training_gets_the_done_bonus():
     for body in [car.hull] + car.wheels:
         body.position = (body.position[0] + shift, body.position[1])
     _, reward, terminated, _, _ = env.step(still())
-    assert reward[0] == pytest.approx(-100.0 + 100.0 - 0.05) and terminated[0]  # off road too
+    # No grass penalty: the view beyond the playfield is mostly black, its mean green far below 185.
+    assert reward[0] == pytest.approx(-100.0 + 100.0) and terminated[0]
 
 
 def test_episode_is_truncated_at_max_steps():
@@ -273,6 +274,7 @@ def render_on_ring(x, y, angle):
         "x": np.array([x]),
         "y": np.array([y]),
         "angle": np.array([angle]),
+        "velocity": np.zeros((1, 2)),
         "wheel_xy": np.array([[[-1.1, 1.6], [1.1, 1.6], [-1.1, -1.64], [1.1, -1.64]]]),
         "wheel_angle": np.zeros((1, 4)),
         "wheel_phase": np.zeros((1, 4)),
@@ -387,14 +389,14 @@ def test_mask_is_not_transposed():
 
 
 # --- generators and mutation --------------------------------------------------------------------
-def test_random_levels_and_mutation_keep_12_distinct_cells():
+def test_sketch_levels_and_mutation_move_cells_to_free_neighbours():
     env = make_env()
     rng = np.random.default_rng(0)
-    levels = env.random_levels(300, rng)
-    assert all(len(set(row)) == 12 for row in levels.cells.tolist())
+    levels = env.random_sketch_levels(300, rng)
+    distinct = np.array([len(set(row)) for row in levels.cells.tolist()])
     child = env.mutate(levels, rng)
     assert child.cells.min() >= 0 and child.cells.max() < 100
-    assert all(len(set(row)) == 12 for row in child.cells.tolist())
+    assert np.all([len(set(row)) for row in child.cells.tolist()] >= distinct)  # no cell newly repeats
     moved = (child.cells != levels.cells).sum(axis=1)
     assert moved.max() <= 3 and moved.mean() > 1.5
     changed = child.cells != levels.cells
@@ -402,6 +404,8 @@ def test_random_levels_and_mutation_keep_12_distinct_cells():
     assert np.all(np.maximum(np.abs(old % 10 - new % 10), np.abs(old // 10 - new // 10)) <= 3)
     fixed = env.test_levels()["Hairpins"].generate(2, rng)
     assert np.array_equal(env.mutate(fixed, rng).cells, fixed.cells)
+    dr = env.random_levels(2, rng)
+    assert np.array_equal(env.mutate(dr, rng).points, dr.points)  # DR's continuous tracks stay
     metrics = env.level_metrics(levels[:3])
     assert list(metrics) == ["track_length", "total_curvature", "sharp_turns"] and metrics["track_length"].shape == (3,)
 

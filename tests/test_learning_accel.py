@@ -42,7 +42,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
 
     before = evaluation()
     replays, children_entered = 0, 0
-    for update in range(1, 26):
+    for update in range(1, 36):
         replay = accel.decide_replay(len(buffer), args, rng)
         if replay:
             index = buffer.sample(args.num_envs, update, rng)
@@ -67,6 +67,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
 
     assert replays >= 15 and children_entered > 0  # the ACCEL loop ran: mostly replay, edited levels entered
     assert env.level_metrics(buffer.levels)["walls"].max() > 0
-    # measured: mean return 0.023 -> 0.264, solved rate 0.04 -> 0.365 (learning rate 0: 0.023 -> 0.016)
+    # measured with the reference's editor (35 updates): mean return 0.030 -> 0.182, solved rate 0.06 -> 0.25
+    # (learning rate 0: unchanged, 0.030 and 0.06)
     assert after[0] > before[0] + 0.12, (before, after)
     assert after[1] > before[1] + 0.15, (before, after)
