@@ -1,0 +1,187 @@
+"""Run a sweep of training runs (experiments x seeds) with submitit: on this machine or on a SLURM cluster,
+from the same sweep file.
+
+    python -m results.sweep results/sweeps/maze_cpu.toml                   # local, resumable
+    python -m results.sweep results/sweeps/paper_full.toml --cluster slurm
+    python -m results.sweep results/sweeps/maze_cpu.toml --collect results/maze
+
+A sweep file (TOML) names its seeds, how many runs go at once, the torch threads of each run, and one
+command line per experiment:
+
+    seeds = [1, 2, 3]
+    parallel = 2          # runs at a time: local lanes, or SLURM's array parallelism
+    threads = 1           # torch threads per run (keep parallel x threads within the cores)
+    timeout_hours = 48
+    [experiments]
+    dr = ["plr.py", "--env", "maze", "--replay-prob", "0", "--total-timesteps", "10000000"]
+
+Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scripts' own run directory,
+with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
+resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
+continued by launching it again. `--collect DEST` copies each finished run's args.json, metrics.csv and
+eval.json to DEST/<experiment>/<seed>/, plus the final student's weights of seed 1 as agent.pt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPTS = ("plr.py", "accel.py", "paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py")
+
+
+def fail(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def load_sweep(path: str) -> dict:
+    """The sweep file, checked: seeds, parallel, threads, timeout_hours, experiments (name -> command)."""
+    try:
+        with open(path, "rb") as f:
+            sweep = tomllib.load(f)
+    except FileNotFoundError:
+        fail(f"no sweep file {path}")
+    except tomllib.TOMLDecodeError as error:
+        fail(f"{path} is not valid TOML: {error}")
+    sweep = {"parallel": 1, "threads": 1, "timeout_hours": 48, "slurm": {}, **sweep}
+    unknown = set(sweep) - {"seeds", "parallel", "threads", "timeout_hours", "experiments", "slurm"}
+    if unknown:
+        fail(f"{path}: unknown keys {sorted(unknown)}")
+    seeds, experiments = sweep.get("seeds"), sweep.get("experiments")
+    if not (isinstance(seeds, list) and seeds and all(isinstance(s, int) for s in seeds)):
+        fail(f"{path}: seeds must be a non-empty list of integers")
+    if not (isinstance(experiments, dict) and experiments):
+        fail(f"{path}: [experiments] must name at least one experiment")
+    for name, command in experiments.items():
+        if not (isinstance(command, list) and command and all(isinstance(a, str) for a in command)):
+            fail(f"{path}: experiment {name!r} must be a list of strings, the script first")
+        if command[0] not in SCRIPTS:
+            fail(f"{path}: experiment {name!r} runs {command[0]!r}, not one of {', '.join(SCRIPTS)}")
+        if "--env" not in command[:-1]:
+            fail(f"{path}: experiment {name!r} must give --env")
+        if {"--seed", "--exp-name", "--resume"} & set(command):
+            fail(f"{path}: experiment {name!r} must not set --seed, --exp-name or --resume (the sweep does)")
+    for key in ("parallel", "threads", "timeout_hours"):
+        if not (isinstance(sweep[key], (int, float)) and sweep[key] > 0):
+            fail(f"{path}: {key} must be positive")
+    return sweep
+
+
+def run_directory(workdir: str, env: str, experiment: str, seed: int) -> str | None:
+    """The newest run directory of this experiment and seed, if any."""
+    found = sorted(glob.glob(os.path.join(workdir, "runs", f"{env}__{experiment}__{seed}__*")))
+    return found[-1] if found else None
+
+
+def run_one(job: dict) -> str:
+    """One run, continued where it stands: skipped if finished, resumed from its checkpoint if cut off,
+    else started (a directory left without a checkpoint is started anew). Returns what it did."""
+    command, workdir = job["command"], job["workdir"]
+    env = command[command.index("--env") + 1]
+    existing = run_directory(workdir, env, job["experiment"], job["seed"])
+    if existing and os.path.isfile(os.path.join(existing, "eval.json")):
+        return f"finished earlier: {existing}"
+    script = os.path.join(ROOT, command[0])
+    if existing and os.path.isfile(os.path.join(existing, "checkpoint.pt")):
+        arguments, action = [script, "--resume", existing], f"resumed {existing}"
+    else:
+        if existing:
+            shutil.rmtree(existing)
+        arguments = [script, *command[1:], "--exp-name", job["experiment"], "--seed", str(job["seed"])]
+        action = f"ran {job['experiment']} seed {job['seed']}"
+    os.makedirs(os.path.join(workdir, "logs"), exist_ok=True)
+    threads = str(job["threads"])
+    with open(os.path.join(workdir, "logs", f"{job['experiment']}_{job['seed']}.log"), "a") as log:
+        result = subprocess.run([sys.executable, *arguments], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                                env={**os.environ, "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
+    if result.returncode != 0:
+        raise RuntimeError(f"{action}: exit status {result.returncode} (see logs/{job['experiment']}_{job['seed']}.log)")
+    return action
+
+
+def run_lane(jobs: list[dict]) -> list[str]:
+    """A local lane: its runs one after another."""
+    return [run_one(job) for job in jobs]
+
+
+def launch(sweep: dict, jobs: list[dict], cluster: str, workdir: str) -> None:
+    import submitit
+
+    executor = submitit.AutoExecutor(folder=os.path.join(workdir, "submitit"), cluster=cluster)
+    timeout_min = int(sweep["timeout_hours"] * 60)
+    if cluster == "slurm":
+        executor.update_parameters(timeout_min=timeout_min, cpus_per_task=int(sweep["threads"]),
+                                   slurm_array_parallelism=int(sweep["parallel"]),
+                                   **{f"slurm_{k}": v for k, v in sweep["slurm"].items()})
+        submitted = executor.map_array(run_one, jobs)
+    else:  # the local executor starts every job at once: `parallel` lanes, each running its share in turn
+        executor.update_parameters(timeout_min=timeout_min)
+        lanes = [jobs[i :: int(sweep["parallel"])] for i in range(int(sweep["parallel"]))]
+        submitted = [executor.submit(run_lane, lane) for lane in lanes if lane]
+    print(f"{len(jobs)} runs in {len(submitted)} {cluster} jobs; logs in {os.path.join(workdir, 'logs')}", flush=True)
+    failures = 0
+    for job in submitted:  # the local jobs live as long as this process: wait for them
+        try:
+            result = job.result()
+            print("\n".join(result) if isinstance(result, list) else result, flush=True)
+        except Exception as error:  # a failed run does not stop the others
+            failures += 1
+            print(f"failed: {error}", flush=True)
+    if failures:
+        sys.exit(1)
+
+
+def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
+    """Copy each finished run's small outputs to DEST/<experiment>/<seed>/ (and seed 1's student weights)."""
+    import torch
+
+    for job in jobs:
+        command = job["command"]
+        run = run_directory(job["workdir"], command[command.index("--env") + 1], job["experiment"], job["seed"])
+        if not (run and os.path.isfile(os.path.join(run, "eval.json"))):
+            continue
+        target = os.path.join(destination, job["experiment"], str(job["seed"]))
+        os.makedirs(target, exist_ok=True)
+        for name in ("args.json", "metrics.csv", "eval.json"):
+            shutil.copy(os.path.join(run, name), target)
+        if job["seed"] == min(sweep["seeds"]):
+            checkpoint = torch.load(os.path.join(run, "checkpoint.pt"), map_location="cpu", weights_only=False)
+            student = checkpoint["agent"] if "agent" in checkpoint else checkpoint["protagonist"]
+            torch.save(student, os.path.join(target, "agent.pt"))
+        print(f"collected {run} -> {target}")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description="Run a sweep of training runs with submitit (see the module's docstring).")
+    parser.add_argument("sweep", help="the sweep file (TOML)")
+    parser.add_argument("--cluster", choices=("local", "slurm"), default="local", help="where the runs go (default: this machine)")
+    parser.add_argument("--workdir", default=".", help="where runs/, logs/ and submitit/ go (default: the current directory)")
+    parser.add_argument("--collect", metavar="DEST", help="copy the finished runs' outputs to DEST instead of running")
+    parser.add_argument("--dry-run", action="store_true", help="print what would run, and run nothing")
+    parser.error = lambda message: fail(message)  # one error line, exit 2
+    args = parser.parse_args(argv)
+    sweep = load_sweep(args.sweep)
+    workdir = os.path.abspath(args.workdir)
+    jobs = [{"experiment": name, "seed": seed, "command": command, "threads": sweep["threads"], "workdir": workdir}
+            for seed in sweep["seeds"] for name, command in sweep["experiments"].items()]
+    if args.collect:
+        collect(sweep, jobs, args.collect)
+    elif args.dry_run:
+        for job in jobs:
+            print(f"{job['experiment']} seed {job['seed']}: python {' '.join(job['command'])}")
+    else:
+        if args.cluster == "slurm" and shutil.which("sbatch") is None:
+            fail("--cluster slurm needs SLURM (no sbatch on this machine): use --cluster local")
+        os.makedirs(workdir, exist_ok=True)
+        launch(sweep, jobs, args.cluster, workdir)
+
+
+if __name__ == "__main__":
+    main()

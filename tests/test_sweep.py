@@ -1,0 +1,95 @@
+"""The sweep launcher (results/sweep.py) end to end on submitit's local executor: a 2-run sweep of tiny
+runs, one run killed mid-way and resumed by launching the sweep again; collecting the outputs; and bad
+input refused with one error line."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "4096", "--level-buffer-size", "8",
+        "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "1000", "--checkpoint-interval", "1"]
+
+
+def sweep_file(path, experiments: dict, seeds=(1,), parallel=1) -> str:
+    lines = [f"seeds = {list(seeds)}", f"parallel = {parallel}", "threads = 1", "timeout_hours = 1", "[experiments]"]
+    lines += [f"{name} = {json.dumps(command)}" for name, command in experiments.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def sweep(*args, **kwargs):
+    return subprocess.run([sys.executable, "-m", "results.sweep", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600, **kwargs)
+
+
+def metric_rows(run_dir):
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        return f.read().strip().splitlines()[1:]
+
+
+def test_a_killed_sweep_resumes_and_collects(tmp_path):
+    """Kill the sweep (and its runs) once the first run has written 3 updates; launching the sweep again
+    resumes that run from its checkpoint and finishes both. Fails if a relaunch restarts or skips runs."""
+    work = tmp_path / "work"
+    path = sweep_file(tmp_path / "sweep.toml", {"robust": ["plr.py", *TINY], "dr": ["plr.py", *TINY, "--replay-prob", "0"]})
+    process = subprocess.Popen([sys.executable, "-m", "results.sweep", path, "--workdir", str(work)], cwd=ROOT,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 300
+    first = None
+    while time.time() < deadline:
+        runs = sorted((work / "runs").glob("maze__robust__1__*")) if (work / "runs").is_dir() else []
+        if runs and (runs[0] / "metrics.csv").is_file() and len(metric_rows(runs[0])) >= 3:
+            first = runs[0]
+            break
+        time.sleep(0.05)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    assert first is not None and not (first / "eval.json").exists()
+
+    result = sweep(path, "--workdir", str(work))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"resumed {first}" in result.stdout
+    assert "ran dr seed 1" in result.stdout
+    for name in ("robust", "dr"):
+        (run,) = (work / "runs").glob(f"maze__{name}__1__*")
+        assert (run / "eval.json").is_file()
+        assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 33))  # 4096 / 128 updates, once each
+    assert "resuming" in (work / "logs" / "robust_1.log").read_text()
+
+    again = sweep(path, "--workdir", str(work))  # everything finished: nothing runs
+    assert again.returncode == 0 and again.stdout.count("finished earlier") == 2
+
+    collected = tmp_path / "results"
+    assert sweep(path, "--workdir", str(work), "--collect", str(collected)).returncode == 0
+    for name in ("robust", "dr"):
+        assert sorted(os.listdir(collected / name / "1")) == ["agent.pt", "args.json", "eval.json", "metrics.csv"]
+    weights = torch.load(collected / "dr" / "1" / "agent.pt", weights_only=True)
+    assert "lstm.lstm.weight_hh_l0" in weights and not any("optimizer" in k for k in weights)
+
+
+@pytest.mark.parametrize("content, message", [
+    ('seeds = [1]\n[experiments]\nx = ["train.py", "--env", "maze"]\n', "not one of"),
+    ('seeds = [1]\n[experiments\n', "not valid TOML"),
+    ('seeds = []\n[experiments]\nx = ["plr.py", "--env", "maze"]\n', "seeds"),
+    ('seeds = [1]\n[experiments]\nx = ["plr.py", "--seed", "3", "--env", "maze"]\n', "must not set"),
+])
+def test_bad_sweep_files_are_refused_in_one_line(tmp_path, content, message):
+    path = tmp_path / "sweep.toml"
+    path.write_text(content)
+    result = sweep(str(path), "--dry-run")
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], result.stderr
+
+
+def test_slurm_without_slurm_is_refused(tmp_path):
+    path = sweep_file(tmp_path / "sweep.toml", {"dr": ["plr.py", *TINY]})
+    result = sweep(path, "--cluster", "slurm", "--workdir", str(tmp_path), env={**os.environ, "PATH": "/usr/bin:/bin"})
+    assert result.returncode == 2 and result.stderr.startswith("error: --cluster slurm needs SLURM")
+    assert not (tmp_path / "runs").exists()
