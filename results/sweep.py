@@ -19,7 +19,8 @@ Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scr
 with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
 resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
 continued by launching it again. `--collect DEST` copies each finished run's args.json, metrics.csv and
-eval.json to DEST/<experiment>/<seed>/, plus the final student's weights of seed 1 as agent.pt.
+eval.json to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
+plus the final student's weights of seed 1 as agent.pt.
 """
 
 from __future__ import annotations
@@ -151,6 +152,9 @@ def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
         os.makedirs(target, exist_ok=True)
         for name in ("args.json", "metrics.csv", "eval.json"):
             shutil.copy(os.path.join(run, name), target)
+        images = glob.glob(os.path.join(run, "levels_*.png"))
+        if images:  # the levels of the curriculum at the end
+            shutil.copy(max(images, key=lambda path: int(path.rsplit("_", 1)[1][:-4])), os.path.join(target, "levels.png"))
         if job["seed"] == min(sweep["seeds"]):
             checkpoint = torch.load(os.path.join(run, "checkpoint.pt"), map_location="cpu", weights_only=False)
             student = checkpoint["agent"] if "agent" in checkpoint else checkpoint["protagonist"]

@@ -14,7 +14,7 @@ import torch
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "4096", "--level-buffer-size", "8",
-        "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "1000", "--checkpoint-interval", "1"]
+        "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "10", "--checkpoint-interval", "1"]
 
 
 def sweep_file(path, experiments: dict, seeds=(1,), parallel=1) -> str:
@@ -69,7 +69,7 @@ def test_a_killed_sweep_resumes_and_collects(tmp_path):
     collected = tmp_path / "results"
     assert sweep(path, "--workdir", str(work), "--collect", str(collected)).returncode == 0
     for name in ("robust", "dr"):
-        assert sorted(os.listdir(collected / name / "1")) == ["agent.pt", "args.json", "eval.json", "metrics.csv"]
+        assert sorted(os.listdir(collected / name / "1")) == ["agent.pt", "args.json", "eval.json", "levels.png", "metrics.csv"]
     weights = torch.load(collected / "dr" / "1" / "agent.pt", weights_only=True)
     assert "lstm.lstm.weight_hh_l0" in weights and not any("optimizer" in k for k in weights)
 

@@ -1,0 +1,255 @@
+"""The maze reproduction's numbers and figures, regenerated from the committed run outputs alone.
+
+    python -m results.report results/maze
+
+reads DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
+summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
+training.png (c) and levels.png (d).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from envs.evaluation import aggregate  # noqa: E402
+
+# The experiments in the order of the paper's tables, with their names there.
+EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired": "PAIRED", "paired_hient": "PAIRED+HiEnt",
+               "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo"}
+MAZES = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
+         "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
+# The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates):
+# its Table "Minigrid 0-60 Uniform-Blocks" and, for PAIRED+Evo, its PAIRED+Evo table. It reports no DR or
+# Robust PLR on maze 0-60.
+PAPER = {
+    "accel": [(0.64, 0.18), (0.55, 0.19), (0.73, 0.18), (0.62, 0.2), (0.79, 0.2), (0.33, 0.18), (0.53, 0.2), (0.67, 0.16),
+              (0.64, 0.2), (0.5, 0.05), (0.51, 0.04), (0.82, 0.02), (0.61, 0.03)],
+    "paired": [(0.16, 0.13), (0.1, 0.1), (0.46, 0.23), (0.15, 0.14), (0.01, 0.01), (0.02, 0.02), (0.15, 0.15), (0.25, 0.17),
+               (0.16, 0.08), (0.17, 0.07), (0.38, 0.06), (0.48, 0.16), (0.21, 0.07)],
+    "paired_hient": [(0.42, 0.16), (0.57, 0.23), (0.7, 0.2), (0.67, 0.18), (0.19, 0.11), (0.54, 0.16), (0.39, 0.19), (0.63, 0.22),
+                     (0.63, 0.19), (0.47, 0.15), (0.42, 0.02), (0.62, 0.04), (0.52, 0.13)],
+    "paired_bc_hient": [(0.83, 0.07), (0.64, 0.17), (0.33, 0.1), (0.26, 0.15), (0.03, 0.02), (0.38, 0.15), (0.5, 0.13), (0.63, 0.07),
+                        (0.57, 0.11), (0.25, 0.04), (0.55, 0.05), (0.68, 0.08), (0.47, 0.05)],
+    "paired_evo": [(0.78, 0.13), (0.48, 0.23), (0.51, 0.28), (0.2, 0.14), (0.5, 0.27), (0.28, 0.24), (0.44, 0.25), (0.58, 0.25),
+                   (0.53, 0.27), (0.42, 0.14), (0.42, 0.09), (0.86, 0.06), (0.5, 0.14)],
+}
+SMOOTHING = 25  # updates in the trailing mean of the training curves
+# Training curves: (title, the column each script family logs it in, y range or None)
+CURVES = [("protagonist's training return", ("mean_return", "protagonist_return"), (0, 1)),
+          ("validation solved rate (3 mazes)", ("val_solved_rate",), (0, 1)),
+          ("teacher's policy entropy (PAIRED family)", ("teacher_entropy",), None),
+          ("walls per training level", ("walls",), None),
+          ("shortest path of training levels (170: none)", ("path_length",), None)]
+
+
+def fail(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def load_runs(directory: str) -> dict[str, dict[int, dict]]:
+    """{experiment: {seed: {"args", "metrics" (list of rows), "eval", "levels" (path or None)}}} for the
+    experiments found in the directory, in the paper's order."""
+    runs = {}
+    for experiment in [*EXPERIMENTS, *sorted(set(os.listdir(directory)) - set(EXPERIMENTS))]:
+        folder = os.path.join(directory, experiment)
+        if not os.path.isdir(folder):
+            continue
+        for seed in sorted(os.listdir(folder), key=lambda s: (not s.isdigit(), s)):
+            run = os.path.join(folder, seed)
+            if not (seed.isdigit() and os.path.isfile(os.path.join(run, "eval.json"))):
+                continue
+            with open(os.path.join(run, "metrics.csv"), newline="") as f:
+                metrics = list(csv.DictReader(f))
+            levels = os.path.join(run, "levels.png")
+            runs.setdefault(experiment, {})[int(seed)] = {
+                "args": json.load(open(os.path.join(run, "args.json"))), "metrics": metrics,
+                "eval": json.load(open(os.path.join(run, "eval.json"))), "levels": levels if os.path.isfile(levels) else None}
+    if not runs:
+        fail(f"no finished runs (DIR/<experiment>/<seed>/eval.json) in {directory}")
+    return runs
+
+
+def summarize(runs: dict) -> dict:
+    """{experiment: mean solved rate and its standard error over seeds, IQM and optimality gap with 95%
+    stratified-bootstrap intervals, and per maze the mean and standard error}."""
+    summary = {}
+    for experiment, seeds in runs.items():
+        result = aggregate([seeds[s]["eval"] for s in sorted(seeds)])
+        summary[experiment] = {
+            "seeds": sorted(seeds), "mean_solved_rate": result["mean"], "se": result["mean_stderr"], "iqm": result["iqm"],
+            "iqm_ci": list(result["iqm_ci"]), "optimality_gap": result["optimality_gap"],
+            "optimality_gap_ci": list(result["optimality_gap_ci"]),
+            "per_level": {name: {"mean": r["mean"], "se": r["stderr"]} for name, r in result["levels"].items()}}
+    return summary
+
+
+def cell(mean: float, se: float) -> str:
+    return f"{mean:.2f} ± {se:.2f}"
+
+
+def table(summary: dict) -> str:
+    """Markdown: ours (mean ± standard error over seeds per maze, the mean, IQM and optimality gap with
+    their intervals), then the paper's numbers for the experiments it reports."""
+    names = list(summary)
+    lines = ["| maze | " + " | ".join(EXPERIMENTS.get(n, n) for n in names) + " |", "|---" * (len(names) + 1) + "|"]
+    for maze in MAZES:
+        lines.append(f"| {maze} | " + " | ".join(cell(summary[n]["per_level"][maze]["mean"], summary[n]["per_level"][maze]["se"]) for n in names) + " |")
+    lines.append("| **mean** | " + " | ".join(f"**{cell(summary[n]['mean_solved_rate'], summary[n]['se'])}**" for n in names) + " |")
+    lines.append("| IQM [95% CI] | " + " | ".join(f"{summary[n]['iqm']:.2f} [{summary[n]['iqm_ci'][0]:.2f}, {summary[n]['iqm_ci'][1]:.2f}]" for n in names) + " |")
+    lines.append("| optimality gap [95% CI] | " + " | ".join(
+        f"{summary[n]['optimality_gap']:.2f} [{summary[n]['optimality_gap_ci'][0]:.2f}, {summary[n]['optimality_gap_ci'][1]:.2f}]" for n in names) + " |")
+    lines.append("| seeds | " + " | ".join(str(len(summary[n]["seeds"])) for n in names) + " |")
+    paper = [n for n in EXPERIMENTS if n in PAPER]
+    lines += ["", "The paper's solved rates (maze 0-60, 250M steps, 5 seeds; mean ± standard error):", "",
+              "| maze | " + " | ".join(EXPERIMENTS[n] for n in paper) + " |", "|---" * (len(paper) + 1) + "|"]
+    for i, maze in enumerate([*MAZES, "**mean**"]):
+        lines.append(f"| {maze} | " + " | ".join(cell(*PAPER[n][i]) for n in paper) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def colours(names) -> dict:
+    palette = plt.get_cmap("tab10")
+    return {name: palette(i) for i, name in enumerate([*EXPERIMENTS, *sorted(set(names) - set(EXPERIMENTS))]) if name in names}
+
+
+def plot_solved_per_maze(summary: dict, path: str) -> None:
+    """(a) The solved rate per held-out maze per experiment, mean ± standard error over seeds."""
+    names, colour = list(summary), colours(summary)
+    fig, ax = plt.subplots(figsize=(13, 4.2))
+    width = 0.8 / len(names)
+    for i, name in enumerate(names):
+        levels = summary[name]["per_level"]
+        x = np.arange(len(MAZES) + 1) + (i - (len(names) - 1) / 2) * width
+        means = [levels[m]["mean"] for m in MAZES] + [summary[name]["mean_solved_rate"]]
+        errors = [levels[m]["se"] for m in MAZES] + [summary[name]["se"]]
+        ax.bar(x, means, width, yerr=errors, capsize=2, color=colour[name],
+               label=f"{EXPERIMENTS.get(name, name)} ({len(summary[name]['seeds'])} seeds)")
+    for i, name in enumerate(n for n in names if n in PAPER):  # the paper's mean, on the "mean" group
+        x = len(MAZES) + (names.index(name) - (len(names) - 1) / 2) * width
+        ax.plot(x, PAPER[name][-1][0], marker="_", markersize=14, markeredgewidth=2.5, color="black",
+                label="paper's mean (250M steps)" if i == 0 else None)
+    ax.set_xticks(np.arange(len(MAZES) + 1), [*MAZES, "mean"], rotation=30, ha="right")
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("solved rate")
+    ax.set_title("Zero-shot solved rate on the held-out mazes (mean ± s.e. over seeds)")
+    ax.legend(ncol=4, fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_aggregates(summary: dict, path: str) -> None:
+    """(b) IQM and optimality gap of the solved rate with their 95% bootstrap intervals."""
+    names, colour = list(summary), colours(summary)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 0.45 * len(names) + 1.4), sharey=True)
+    for ax, key, title in zip(axes, ("iqm", "optimality_gap"), ("IQM (higher is better)", "optimality gap (lower is better)")):
+        for y, name in enumerate(names):
+            low, high = summary[name][key + "_ci"]
+            ax.barh(y, high - low, left=low, height=0.6, color=colour[name], alpha=0.7)
+            ax.plot([summary[name][key]] * 2, [y - 0.3, y + 0.3], color="black")
+        ax.set_xlim(0, 1)
+        ax.set_title(title)
+        ax.set_xlabel("solved rate")
+    axes[0].set_yticks(range(len(names)), [EXPERIMENTS.get(n, n) for n in names])
+    axes[0].invert_yaxis()
+    fig.suptitle("Aggregates over seeds and mazes (bars: 95% stratified-bootstrap intervals)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def curve(rows: list[dict], columns: tuple, smooth: bool):
+    """(env steps, values) of the first of `columns` the run logged: rows without a value are skipped;
+    a trailing mean over SMOOTHING logged values if `smooth`."""
+    column = next((c for c in columns if c in rows[0]), None)
+    points = [(float(r["env_steps"]), float(r[column])) for r in rows if column and r.get(column) not in ("", None)]
+    if not points:
+        return None
+    steps, values = np.array(points).T
+    if smooth:
+        cumulative = np.cumsum(np.insert(values, 0, 0.0))
+        start = np.maximum(np.arange(1, len(values) + 1) - SMOOTHING, 0)
+        values = (cumulative[1:] - cumulative[start]) / (np.arange(1, len(values) + 1) - start)
+    return steps, values
+
+
+def plot_training(runs: dict, path: str) -> None:
+    """(c) Training curves, a band of ± one standard error over seeds around their mean, one quantity per
+    panel on its own axis."""
+    colour = colours(runs)
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(4.2 * len(CURVES), 3.6))
+    for ax, (title, columns, limits) in zip(axes, CURVES):
+        for name, seeds in runs.items():
+            curves = [c for c in (curve(s["metrics"], columns, smooth=columns != ("val_solved_rate",)) for s in seeds.values()) if c]
+            if not curves:
+                continue
+            end = min(c[0][-1] for c in curves)
+            grid = np.linspace(0, end, 200)
+            values = np.array([np.interp(grid, steps, v) for steps, v in curves])
+            mean = values.mean(axis=0)
+            se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
+            ax.plot(grid / 1e6, mean, color=colour[name], label=EXPERIMENTS.get(name, name))
+            ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour[name], alpha=0.2)
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("protagonist env steps (M)")
+        if limits:
+            ax.set_ylim(*limits)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"Training (trailing mean over {SMOOTHING} updates except validation; band: ± s.e. over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_levels(runs: dict, path: str) -> None:
+    """(d) Each experiment's curriculum at the end (its lowest seed's last level image)."""
+    shown = [(name, seeds[min(s for s in seeds if seeds[s]["levels"])]["levels"]) for name, seeds in runs.items()
+             if any(s["levels"] for s in seeds.values())]
+    if not shown:
+        return
+    fig, axes = plt.subplots(len(shown), 1, figsize=(10, 3.3 * len(shown)), squeeze=False)
+    for ax, (name, image) in zip(axes[:, 0], shown):
+        picture = plt.imread(image)
+        ax.imshow(picture[: picture.shape[0] // 2])  # the first two rows of levels
+        ax.set_title(f"{EXPERIMENTS.get(name, name)}: levels at the end of training", fontsize=10)
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description="Regenerate the maze reproduction's summary, table and figures.")
+    parser.add_argument("directory", help="the results directory, e.g. results/maze")
+    parser.error = lambda message: fail(message)
+    args = parser.parse_args(argv)
+    if not os.path.isdir(args.directory):
+        fail(f"no directory {args.directory}")
+    runs = load_runs(args.directory)
+    summary = summarize(runs)
+    with open(os.path.join(args.directory, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+    with open(os.path.join(args.directory, "table.md"), "w") as f:
+        f.write(table(summary))
+    plot_solved_per_maze(summary, os.path.join(args.directory, "solved_per_maze.png"))
+    plot_aggregates(summary, os.path.join(args.directory, "aggregates.png"))
+    plot_training(runs, os.path.join(args.directory, "training.png"))
+    plot_levels(runs, os.path.join(args.directory, "levels.png"))
+    for name, s in summary.items():
+        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seeds  mean solved {cell(s['mean_solved_rate'], s['se'])}  "
+              f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
