@@ -633,10 +633,11 @@ if __name__ == "__main__":
             print(f"update {update}/{num_updates} | steps {global_step} | {window_sps:.0f} steps/s | return {row['mean_return']:.3f} "
                   f"| solved {row['solved_rate']:.2f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} | ETA {eta / 60:.1f} min")
             window_start, window_steps = time.time(), 0
-        if len(buffer) and (update % args.levels_interval == 0 or update == num_updates):
-            top = np.argsort(-buffer.scores)[:32]
-            save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
-                            titles=[f"score {s:.3f}" for s in buffer.scores[top]])
+        if update % args.levels_interval == 0 or update == num_updates:  # the buffer's best levels (DR: this update's)
+            shown, shown_scores = (buffer.levels, buffer.scores) if len(buffer) else (levels, scores)
+            top = np.argsort(-shown_scores)[:32]
+            save_image_grid(env.render(shown[top]), os.path.join(run_dir, f"levels_{update}.png"),
+                            titles=[f"score {s:.3f}" for s in shown_scores[top]])
         if update % args.checkpoint_interval == 0 or update == num_updates:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),

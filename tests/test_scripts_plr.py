@@ -53,7 +53,7 @@ def test_modes_write_a_complete_run(tmp_path, mode, flags, trains_every_update):
     else:
         assert int(rows[-1]["buffer_size"]) == 8
         assert any(r["replay"] == "1" for r in rows)  # 4 copies fill the buffer to half after one update
-        assert os.path.isfile(os.path.join(run_dir, "levels_2.png"))
+    assert os.path.isfile(os.path.join(run_dir, "levels_2.png"))  # DR: the levels it trained on
 
 
 def test_maze25_runs(tmp_path):
