@@ -14,10 +14,13 @@ every replayed level once).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
+import io
 import json
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -50,7 +53,8 @@ class Args:
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
     f1_tracks: Optional[str] = None
-    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
+    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
+    paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
     # PPO (SPEC 4; None = the paper's value for --env)
     gradient_updates: Optional[int] = None
@@ -149,6 +153,23 @@ def fail(message: str) -> None:
     sys.exit(2)
 
 
+def parse_command_line() -> Args:
+    """The command line's options. tyro reports a bad one (a value of the wrong type, an unknown option)
+    in a box of many lines: its first paragraph becomes one `error:` line, as every other bad input."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            args = tyro.cli(Args)
+    except SystemExit as exit_request:
+        if exit_request.code:  # (0 after --help)
+            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
+            lines = [line.strip(" │─╰╯") for line in box] + [""]
+            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
+        raise
+    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+    return args
+
+
 def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, fill unset options with the paper's values, and check them."""
     if args.resume is not None:
@@ -199,12 +220,13 @@ def check_track_file(args: Args) -> None:
         fail("--f1-tracks applies to --env carracing only")
     path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
     if args.env == "carracing" and path:
-        from envs.carracing import load_f1_tracks
+        if path != "none":
+            from envs.carracing import load_f1_tracks
 
-        try:
-            load_f1_tracks(path)
-        except ValueError as error:
-            fail(str(error))
+            try:
+                load_f1_tracks(path)
+            except ValueError as error:
+                fail(str(error))
         os.environ["CLEANUED_F1_TRACKS"] = path
 
 
@@ -543,7 +565,7 @@ def rng_state(rngs: dict) -> dict:
 
 
 if __name__ == "__main__":
-    args = resolve_args(tyro.cli(Args))
+    args = resolve_args(parse_command_line())
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     batch_size = args.num_envs * args.num_steps
 

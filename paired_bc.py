@@ -16,11 +16,14 @@ blocks 0.1, 25, 0.005, 0.05). Everything else is PAIRED (Algorithm 1).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
+import io
 import json
 import math
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -53,7 +56,8 @@ class Args:
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
     f1_tracks: Optional[str] = None
-    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS)"""
+    """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
+    paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
     # PPO for all three agents (SPEC 4; None = the paper's value for --env)
     total_timesteps: Optional[int] = None
@@ -138,6 +142,23 @@ def fail(message: str) -> None:
     sys.exit(2)
 
 
+def parse_command_line() -> Args:
+    """The command line's options. tyro reports a bad one (a value of the wrong type, an unknown option)
+    in a box of many lines: its first paragraph becomes one `error:` line, as every other bad input."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            args = tyro.cli(Args)
+    except SystemExit as exit_request:
+        if exit_request.code:  # (0 after --help)
+            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
+            lines = [line.strip(" │─╰╯") for line in box] + [""]
+            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
+        raise
+    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+    return args
+
+
 def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, fill unset options with the paper's values, and check them."""
     if args.resume is not None:
@@ -190,12 +211,13 @@ def check_track_file(args: Args) -> None:
         fail("--f1-tracks applies to --env carracing only")
     path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
     if args.env == "carracing" and path:
-        from envs.carracing import load_f1_tracks
+        if path != "none":
+            from envs.carracing import load_f1_tracks
 
-        try:
-            load_f1_tracks(path)
-        except ValueError as error:
-            fail(str(error))
+            try:
+                load_f1_tracks(path)
+            except ValueError as error:
+                fail(str(error))
         os.environ["CLEANUED_F1_TRACKS"] = path
 
 
@@ -401,6 +423,18 @@ def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     antagonist = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
     return np.maximum(antagonist - protagonist, 0.0)
 
+
+@torch.no_grad()
+def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args: Args, device):
+    """Algorithm 1, line 9: each level's regret is its teacher's reward at the last design step (divided
+    by the running std of the teacher's return if `normalizer`: CarRacing and walker), the only reward of
+    an episode that ends there. Returns the teacher's GAE advantages and returns over its design steps."""
+    n = len(level_regret)
+    reward = level_regret if normalizer is None else normalizer(level_regret, np.ones(n, dtype=bool))
+    storage.rewards.zero_()
+    storage.rewards[-1] = torch.as_tensor(reward, dtype=torch.float32, device=device)
+    return gae(storage, torch.zeros(n, device=device), torch.ones(n, device=device), args.gamma, args.gae_lambda)
+
 def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
     """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
     def average_ranks(x):
@@ -454,7 +488,7 @@ def episode_mean(returns_per_level, threshold=None) -> float:
 
 
 if __name__ == "__main__":
-    args = resolve_args(tyro.cli(Args))
+    args = resolve_args(parse_command_line())
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     batch_size = args.num_envs * args.num_steps
     num_updates = math.ceil(args.total_timesteps / batch_size)
@@ -540,13 +574,7 @@ if __name__ == "__main__":
         # Lines 8-9: the regret is the teacher's reward at its last step; the teacher trains by PPO.
         start = time.time()
         level_regret = regret(returns_of["protagonist"], returns_of["antagonist"])
-        teacher_storage.rewards.zero_()
-        teacher_reward = level_regret
-        if "teacher" in normalizers:  # SPEC 4: CarRacing and walker divide the teacher's return by its running std
-            teacher_reward = normalizers["teacher"](level_regret, np.ones(args.num_envs, dtype=bool))
-        teacher_storage.rewards[-1] = torch.as_tensor(teacher_reward, dtype=torch.float32, device=device)
-        with torch.no_grad():
-            advantages, returns = gae(teacher_storage, torch.zeros(args.num_envs, device=device), torch.ones(args.num_envs, device=device), args.gamma, args.gae_lambda)
+        advantages, returns = teacher_returns(level_regret, teacher_storage, normalizers.get("teacher"), args, device)
         teacher.train()
         stats["teacher"] = ppo_update(teacher, optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef,
                                       args.teacher_update_epochs, args.teacher_num_minibatches, args, update, device)
@@ -557,7 +585,7 @@ if __name__ == "__main__":
         level_stats = env.level_metrics(levels)
         row = {"update": update, "env_steps": global_step, "sps": round(global_step / elapsed),
                "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
-               "teacher_return": float(level_regret.mean()), "regret": float(level_regret.mean()),
+               "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
                "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
                "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
                **{f"{name}_entropy": stats[name]["entropy"] for name in agents},

@@ -69,6 +69,10 @@ GRASS_GREEN_MEAN = 185.0  # "on grass": the frame's mean green channel exceeds t
 EARLY_STOP_WINDOW = 100
 EARLY_STOP_MEAN = -0.1
 F1_ENV_VAR = "CLEANUED_F1_TRACKS"
+# The paper's 20 held-out Formula-1 circuits (and LagunaSeca), from the reference implementation: their
+# licence (CC BY-NC 4.0) is in envs/data/LICENSE.md.
+SHIPPED_F1_TRACKS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "f1_tracks.npz")
+NO_F1_TRACKS = "none"  # as the track file: evaluate on vanilla and the built-in tracks only (quick runs)
 
 # Level.track values: -1 = built from the cells; -2 = built from the continuous control points (DR's
 # tracks); then a registry of fixed tracks whose indices never move: vanilla (the level's seed draws
@@ -124,13 +128,17 @@ _NOTICE_SHOWN = False
 
 
 def _f1_tracks_from_environment() -> dict | None:
-    """The F1 tracks of the file named by CLEANUED_F1_TRACKS, or None (with a one-time notice)."""
+    """The F1 tracks of the file named by CLEANUED_F1_TRACKS (default: the 20 circuits shipped with
+    cleanued, SHIPPED_F1_TRACKS); None for "none" (quick runs: vanilla and the built-in tracks), or if
+    the shipped file is missing (with a one-time notice)."""
     global _NOTICE_SHOWN
-    path = os.environ.get(F1_ENV_VAR)
-    if path:
+    path = os.environ.get(F1_ENV_VAR) or SHIPPED_F1_TRACKS
+    if path == NO_F1_TRACKS:
+        return None
+    if path != SHIPPED_F1_TRACKS or os.path.isfile(path):
         return load_f1_tracks(path)
     if not _NOTICE_SHOWN:
-        print(f"note: no F1 track file ({F1_ENV_VAR} / --f1-tracks unset): held-out CarRacing tracks are vanilla, {', '.join(BUILTIN_NAMES)}")
+        print(f"note: no F1 track file ({path} is missing): held-out CarRacing tracks are vanilla, {', '.join(BUILTIN_NAMES)}")
         _NOTICE_SHOWN = True
     return None
 
@@ -401,9 +409,9 @@ class CarRacingEnv:
         return child
 
     def test_levels(self) -> HeldOutTracks:
-        """Held out: vanilla (a fresh gymnasium track per episode) plus the 20 F1 tracks of the file
-        named by CLEANUED_F1_TRACKS (max_steps = the track's frame limit / 8, rounded up), or, without
-        that file, the built-in Hairpins, Chicanes and LongStraights."""
+        """Held out: vanilla (a fresh gymnasium track per episode) plus the 20 F1 tracks (shipped with
+        cleanued, or the file named by CLEANUED_F1_TRACKS; max_steps = the track's frame limit / 8,
+        rounded up), or, if the track file is missing, the built-in Hairpins, Chicanes and LongStraights."""
 
         def vanilla(n, rng):
             """n gymnasium tracks, their seeds drawn from rng."""

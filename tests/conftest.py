@@ -11,12 +11,11 @@ torch.set_num_threads(1)
 
 
 def shared_f1_track_file() -> str:
-    """The project's shared F1 track data (never committed here): $CLEANUED_F1_TRACKS if set, else
-    ../shared/data/f1_tracks.npz beside the checkout, else the machines' /work/shared copy."""
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    candidates = [os.environ.get("CLEANUED_F1_TRACKS", ""), os.path.join(root, "..", "shared", "data", "f1_tracks.npz"),
-                  "/work/shared/data/f1_tracks.npz"]
-    return next((path for path in candidates if path and os.path.isfile(path)), candidates[1])
+    """The F1 track data shipped with cleanued (envs/data), or $CLEANUED_F1_TRACKS if set to a file."""
+    from envs.carracing import SHIPPED_F1_TRACKS
+
+    path = os.environ.get("CLEANUED_F1_TRACKS", "")
+    return path if os.path.isfile(path) else SHIPPED_F1_TRACKS
 
 
 def assert_acting_equals_training(net, obs: dict, state, done, atol: float) -> None:

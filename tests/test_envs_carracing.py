@@ -33,7 +33,7 @@ CELLS = np.array([2, 5, 8, 29, 59, 89, 97, 94, 91, 70, 40, 10])  # a ring around
 
 @pytest.fixture(autouse=True)
 def no_f1_file(monkeypatch):
-    monkeypatch.delenv(cr.F1_ENV_VAR, raising=False)
+    monkeypatch.setenv(cr.F1_ENV_VAR, cr.NO_F1_TRACKS)
 
 
 def make_env(n=1, training=False, seed=0):
@@ -424,3 +424,12 @@ def test_student_net_shapes_and_beta_samples():
     assert torch.isfinite(dist.log_prob(student.sample(dist))).all()
     assert torch.isfinite(dist.log_prob(extreme.clamp(1e-6, 1 - 1e-6))).all()
     assert dist.batch_shape == (5,) and dist.event_shape == (3,)  # KL / entropy summed over the 3 dims
+
+
+def test_the_shipped_f1_tracks_are_the_default(monkeypatch):
+    """Without a track file named, CarRacing is evaluated on the paper's 20 circuits shipped with
+    cleanued; "none" keeps quick runs on vanilla and the built-in tracks."""
+    monkeypatch.delenv(cr.F1_ENV_VAR)
+    held_out = make_env().test_levels()
+    assert len(held_out) == 21 and "Italy" in held_out and "LagunaSeca" not in held_out
+    assert os.path.isfile(os.path.join(os.path.dirname(cr.SHIPPED_F1_TRACKS), "LICENSE.md"))

@@ -20,7 +20,7 @@ STILL = np.array([[0.5, 0.0, 0.0]])
 
 @pytest.fixture(autouse=True)
 def no_f1_file(monkeypatch):
-    monkeypatch.delenv(cr.F1_ENV_VAR, raising=False)
+    monkeypatch.setenv(cr.F1_ENV_VAR, cr.NO_F1_TRACKS)
 
 
 def newest_green_mean(obs) -> float:

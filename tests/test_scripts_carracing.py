@@ -16,9 +16,9 @@ import torch
 from conftest import shared_f1_track_file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED_TRACKS = shared_f1_track_file()
+SHIPPED_TRACKS = shared_f1_track_file()
 TWO_TRACKS = ("Germany", "Italy")
-ENV = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_F1_TRACKS": ""}
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_F1_TRACKS": "none"}
 TINY = ["--env", "carracing", "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
         "--eval-episodes", "1", "--log-interval", "1"]
 SCRIPTS = {
@@ -39,11 +39,11 @@ def run(script, args, cwd):
 
 @pytest.fixture(scope="module")
 def track_file(tmp_path_factory):
-    """Two F1 tracks of the shared file, with their frame limits, in the format users supply."""
+    """Two F1 tracks of the shipped file, with their frame limits, in the format users supply."""
     folder = tmp_path_factory.mktemp("tracks")
-    with np.load(SHARED_TRACKS) as data:
+    with np.load(SHIPPED_TRACKS) as data:
         np.savez(folder / "two.npz", **{name: data[name] for name in TWO_TRACKS})
-    with open(os.path.splitext(SHARED_TRACKS)[0] + "_meta.json") as f:
+    with open(os.path.splitext(SHIPPED_TRACKS)[0] + "_meta.json") as f:
         meta = json.load(f)
     with open(folder / "two_meta.json", "w") as f:
         json.dump({name: meta[name] for name in TWO_TRACKS}, f)
@@ -92,5 +92,5 @@ def test_malformed_track_file_is_one_error_line(tmp_path):
 
 
 def test_track_file_only_for_carracing(tmp_path):
-    result = run("plr.py", ["--env", "maze", "--f1-tracks", SHARED_TRACKS], tmp_path)
+    result = run("plr.py", ["--env", "maze", "--f1-tracks", SHIPPED_TRACKS], tmp_path)
     assert result.returncode == 2 and "carracing only" in result.stderr
