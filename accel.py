@@ -1,6 +1,6 @@
 """ACCEL: Robust PLR whose replayed levels are edited into new ones.
 
-Parker-Holder et al. 2022, the state of the art the paper compares its fixes against (SPEC 4): a Robust
+Parker-Holder et al. 2022, the state of the art the paper compares its fixes against: a Robust
 PLR level buffer scored by the positive value loss (eq. 2), where after every replay update copies of
 replayed levels are mutated by small random edits, played without gradient, scored, and offered to the
 buffer. Complexity then grows by small steps from levels the student can just solve. The parents are
@@ -56,7 +56,7 @@ class Args:
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO (SPEC 4; None = the paper's value for --env)
+    # PPO (None = the paper's value for --env)
     gradient_updates: Optional[int] = None
     """PPO updates to train for, one per replay; 0 for no limit (paper: maze 20k, about 370M env steps)"""
     total_timesteps: Optional[int] = None
@@ -91,7 +91,7 @@ class Args:
     adam_eps: float = 1e-5
     """Adam epsilon"""
 
-    # Robust PLR's level replay (SPEC 4)
+    # Robust PLR's level replay
     replay_prob: Optional[float] = None
     """probability of a replay update once the buffer is full enough (paper: maze 0.8, walker 0.9)"""
     level_buffer_size: Optional[int] = None
@@ -101,7 +101,7 @@ class Args:
     staleness_coef: Optional[float] = None
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
-    # Editing (SPEC 4, ACCEL)
+    # Editing
     generator: Optional[str] = None
     """new levels: random (the DR generator, maze default), empty rooms (maze, ACCEL-empty), easy (walker default) or sketch
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
@@ -126,7 +126,7 @@ class Args:
     """updates between PNGs of the buffer's highest-scoring levels"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 and 4).
+# The paper's settings per env (Appendix A, Table of hyperparameters).
 # ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
 # replay rate and staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
@@ -231,7 +231,7 @@ def check_track_file(args: Args) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Prioritized level replay: the buffer, its replay distribution and its score (SPEC 4, eq. 2).
+# Prioritized level replay: the buffer, its replay distribution and its score (eq. 2).
 # ---------------------------------------------------------------------------------------------------
 def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
     """Score per env copy (eq. 2): the mean over the rollout's completed episodes of the mean over each
@@ -299,7 +299,7 @@ def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
 
 
 def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> bool:
-    """The replay decision (SPEC 4): replay with probability p once the buffer is full enough."""
+    """The replay decision: replay with probability p once the buffer is full enough."""
     if buffer_size < args.min_fill_ratio * args.level_buffer_size:
         return False
     return bool(rng.random() < args.replay_prob)
@@ -394,7 +394,7 @@ class Rollout:
 
 
 class ReturnNormalizer:
-    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
     discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
     running moments are updated with every step's discounted return of every copy."""
 
@@ -707,7 +707,7 @@ if __name__ == "__main__":
     metrics_file.close()
     env.close()
 
-    # Final zero-shot evaluation on every held-out level (SPEC 5).
+    # Final zero-shot evaluation on every held-out level.
     agent.eval()
     results = evaluate_all(agent, args.env, list(env.test_levels()), args.eval_episodes, args.seed, device)
     results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}

@@ -59,7 +59,7 @@ class Args:
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO for all three agents (SPEC 4; None = the paper's value for --env)
+    # PPO for all three agents (None = the paper's value for --env)
     total_timesteps: Optional[int] = None
     """protagonist env steps in all; the antagonist plays as many (paper: maze 250M, carracing 5.5M)"""
     num_envs: Optional[int] = None
@@ -120,7 +120,7 @@ class Args:
     """updates between PNGs of the levels the teacher made"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 to 4). The table has no
+# The paper's settings per env (Appendix A, Table of hyperparameters). The table has no
 # walker BC row: the walker takes its combined setting's BC values (Appendix C).
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
@@ -239,10 +239,10 @@ class Rollout:
 
 
 class ReturnNormalizer:
-    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
     discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
     running moments are updated with every step's discounted return of every copy. The teacher's
-    returns (its final-step regret) are normalized the same way in CarRacing and the walker (SPEC 4)."""
+    returns (its final-step regret) are normalized the same way in CarRacing and the walker."""
 
     def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
         self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
@@ -395,7 +395,7 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
 
 
 # ---------------------------------------------------------------------------------------------------
-# The teacher: it designs levels step by step (SPEC 1, teacher MDP) and is rewarded by the regret.
+# The teacher: it designs levels step by step and is rewarded by the regret.
 # ---------------------------------------------------------------------------------------------------
 @torch.no_grad()
 def teacher_rollout(teacher, mdp, storage: Rollout, args: Args, device):
@@ -628,7 +628,7 @@ if __name__ == "__main__":
     metrics_file.close()
     env.close()
 
-    # Final zero-shot evaluation of the protagonist on every held-out level (SPEC 5).
+    # Final zero-shot evaluation of the protagonist on every held-out level.
     protagonist.eval()
     results = evaluate_all(protagonist, args.env, list(env.test_levels()), args.eval_episodes, args.seed, device)
     results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}

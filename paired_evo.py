@@ -59,7 +59,7 @@ class Args:
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO for both students (SPEC 4; None = the paper's value for --env)
+    # PPO for both students (None = the paper's value for --env)
     total_timesteps: Optional[int] = None
     """protagonist env steps in all, training, scoring and edit evaluation; the antagonist plays as many"""
     num_envs: Optional[int] = None
@@ -99,7 +99,7 @@ class Args:
     adam_eps: float = 1e-5
     """Adam epsilon"""
 
-    # Robust PLR's level replay (SPEC 4)
+    # Robust PLR's level replay
     replay_prob: Optional[float] = None
     """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible on the maze)"""
     level_buffer_size: Optional[int] = None
@@ -109,7 +109,7 @@ class Args:
     staleness_coef: Optional[float] = None
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
-    # Editing (SPEC 4, ACCEL)
+    # Editing
     generator: Optional[str] = None
     """new levels: random (the DR generator, maze default), empty rooms (maze), easy (walker default) or sketch
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
@@ -134,7 +134,7 @@ class Args:
     """updates between PNGs of the buffer's highest-scoring levels"""
 
 
-# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate; SPEC 4).
+# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate).
 # Evo was not run on CarRacing in the paper: its CarRacing defaults are PLR's buffer with the maze's
 # staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
@@ -245,7 +245,7 @@ def check_track_file(args: Args) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The level buffer of high-regret levels: Robust PLR's replay distribution (SPEC 4).
+# The level buffer of high-regret levels: Robust PLR's replay distribution.
 # ---------------------------------------------------------------------------------------------------
 def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     """Algorithm 2's score U(A) - U(P) per level: max antagonist return - mean protagonist return over the
@@ -399,10 +399,10 @@ class Rollout:
 
 
 class ReturnNormalizer:
-    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
     discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
     running moments are updated with every step's discounted return of every copy. The teacher's
-    returns (its final-step regret) are normalized the same way in CarRacing and the walker (SPEC 4)."""
+    returns (its final-step regret) are normalized the same way in CarRacing and the walker."""
 
     def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
         self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
@@ -735,7 +735,7 @@ if __name__ == "__main__":
     metrics_file.close()
     env.close()
 
-    # Final zero-shot evaluation of the protagonist on every held-out level (SPEC 5).
+    # Final zero-shot evaluation of the protagonist on every held-out level.
     protagonist.eval()
     results = evaluate_all(protagonist, args.env, list(env.test_levels()), args.eval_episodes, args.seed, device)
     results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}

@@ -61,7 +61,7 @@ class Args:
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO (SPEC 4; None = the paper's value for --env)
+    # PPO (None = the paper's value for --env)
     total_timesteps: Optional[int] = None
     """env steps to simulate in all, counting those on levels that are only scored (paper: maze 250M, carracing 5.5M)"""
     num_envs: Optional[int] = None
@@ -93,7 +93,7 @@ class Args:
     adam_eps: float = 1e-5
     """Adam epsilon"""
 
-    # Prioritized level replay (SPEC 4)
+    # Prioritized level replay
     replay_prob: Optional[float] = None
     """probability of a replay update once the buffer is full enough (paper: 0.5; 0 gives DR)"""
     generator: Optional[str] = None
@@ -123,7 +123,7 @@ class Args:
     """updates between PNGs of the buffer's highest-scoring levels"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters; SPEC 1 to 4). The table gives no
+# The paper's settings per env (Appendix A, Table of hyperparameters). The table gives no
 # PLR temperature and staleness for CarRacing: the maze's are used.
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
@@ -225,7 +225,7 @@ def check_track_file(args: Args) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Prioritized level replay: the buffer, its replay distribution and its score (SPEC 4, eq. 2).
+# Prioritized level replay: the buffer, its replay distribution and its score (eq. 2).
 # ---------------------------------------------------------------------------------------------------
 def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
     """Score per env copy (eq. 2): the mean over the rollout's completed episodes of the mean over each
@@ -293,7 +293,7 @@ def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
 
 
 def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> bool:
-    """The replay decision (SPEC 4): replay with probability p once the buffer is full enough."""
+    """The replay decision: replay with probability p once the buffer is full enough."""
     if buffer_size < args.min_fill_ratio * args.level_buffer_size:
         return False
     return bool(rng.random() < args.replay_prob)
@@ -378,7 +378,7 @@ class Rollout:
 
 
 class ReturnNormalizer:
-    """Return normalization (SPEC 2, 3): rewards are divided by a running standard deviation of the
+    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
     discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
     running moments are updated with every step's discounted return of every copy."""
 
@@ -669,7 +669,7 @@ if __name__ == "__main__":
     metrics_file.close()
     env.close()
 
-    # Final zero-shot evaluation on every held-out level (SPEC 5).
+    # Final zero-shot evaluation on every held-out level.
     agent.eval()
     results = evaluate_all(agent, args.env, list(env.test_levels()), args.eval_episodes, args.seed, device)
     results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}

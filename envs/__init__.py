@@ -1,4 +1,4 @@
-"""cleanued's environments: the only code the algorithm scripts share (see DESIGN in README.md).
+"""cleanued's environments: the only code the algorithm scripts share.
 
 `make(name, num_envs, seed)` returns the env object whose interface every script relies on:
 random_levels, reset, step, test_levels, mutate, level_metrics, render, teacher, Student, Teacher.

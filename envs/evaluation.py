@@ -1,4 +1,4 @@
-"""Zero-shot evaluation on held-out levels (SPEC section 5), the same for every env and script.
+"""Zero-shot evaluation on held-out levels, the same for every env and script.
 
 Each of the `episodes` episodes of a held-out level runs to its own end in its own env copy, and only
 that first episode counts: long episodes weigh as much as short ones (the paper's "episodes evaluated in
@@ -36,7 +36,7 @@ def evaluate(agent, env_name: str, level, episodes: int, seed: int, device) -> n
 
 def _play_first_episodes(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
     env = envs.make(env_name, episodes, seed)
-    env.training = False  # no training-only reward shaping (SPEC 2)
+    env.training = False  # no training-only reward shaping
     obs = env.reset(level.generate(episodes, np.random.default_rng(seed)), level.max_steps)
     state = agent.initial_state(episodes, device)
     done = torch.ones(episodes, device=device)

@@ -1,4 +1,4 @@
-"""The BipedalWalker UPOMDP (SPEC section 3): gymnasium's walker on terrain a teacher designs.
+"""The BipedalWalker UPOMDP: gymnasium's walker on terrain a teacher designs.
 
 The walker, its motors, lidar, 24-d observation, 4-d action and reward are gymnasium's own
 (`gymnasium.envs.box2d.bipedal_walker.BipedalWalker`); `DesignedBipedalWalker` subclasses it and
@@ -38,7 +38,7 @@ from torch.distributions import Independent, Normal
 from envs.levels import HeldOutLevel, LevelBatch
 from envs.nets import FeedForwardActorCritic, layer_init
 
-# --- the level parameters (SPEC 3) -------------------------------------------------------------------
+# --- the level parameters -------------------------------------------------------------------
 PARAM_NAMES = (
     "roughness",
     "pit_gap_low",
@@ -54,12 +54,12 @@ ROUGHNESS, PIT_LOW, PIT_HIGH, STUMP_LOW, STUMP_HIGH, STAIR_LOW, STAIR_HIGH, STAI
 RANGE_PAIRS = ((PIT_LOW, PIT_HIGH), (STUMP_LOW, STUMP_HIGH), (STAIR_LOW, STAIR_HIGH))
 PARAM_LOW = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 PARAM_HIGH = np.array([10.0, 10.0, 10.0, 5.0, 5.0, 5.0, 5.0, 9.0])
-# An obstacle is enabled when the high end of its range reaches its threshold (SPEC 3).
+# An obstacle is enabled when the high end of its range reaches its threshold.
 PIT_THRESHOLD, STUMP_THRESHOLD, STAIR_THRESHOLD = 0.8, 0.2, 0.2
-# ACCEL's "easy" generator (SPEC 3): roughness U[0, 0.6], the other ranges fixed.
+# ACCEL's "easy" generator: roughness U[0, 0.6], the other ranges fixed.
 EASY_ROUGHNESS_HIGH = 0.6
 EASY_PARAMS = np.array([0.0, 0.0, 0.8, 0.0, 0.4, 0.0, 0.4, 1.0])
-# ACCEL's mutation (SPEC 3): the size of one edit of each parameter (roughness: U(0, 0.6)).
+# ACCEL's mutation: the size of one edit of each parameter (roughness: U(0, 0.6)).
 NUM_EDITS = 3
 MUTATION_SIZE = np.array([0.6, 0.4, 0.4, 0.2, 0.2, 0.2, 0.2, 1.0])
 SEED_BOUND = 2**31
@@ -109,7 +109,7 @@ class Feature:
 
 
 def enabled_obstacles(params: np.ndarray) -> tuple[int, ...]:
-    """The obstacle kinds a level's parameters enable (SPEC 3 thresholds on the high end)."""
+    """The obstacle kinds a level's parameters enable (thresholds on the high end)."""
     kinds = []
     if max(params[STUMP_LOW], params[STUMP_HIGH]) >= STUMP_THRESHOLD:
         kinds.append(STUMP)
@@ -145,7 +145,7 @@ def check_levels(levels: WalkerLevels) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-# gymnasium's walker with a designed terrain (SPEC 3): _generate_terrain is replaced, parts of step added.
+# gymnasium's walker with a designed terrain: _generate_terrain is replaced, parts of step added.
 # ---------------------------------------------------------------------------------------------------
 class DesignedBipedalWalker(gym_walker.BipedalWalker):
     """gymnasium's BipedalWalker whose terrain comes from a level: `play(params, course, seed)` resets
@@ -223,8 +223,8 @@ class DesignedBipedalWalker(gym_walker.BipedalWalker):
         self.terrain.append(body)
 
     def _generate_designed_terrain(self) -> None:
-        """POET's terrain from the level's parameters, in the structure of gymnasium's hardcore generator
-        (SPEC 3), as in the paper's reference implementation: 200 steps, a 20-step start pad, grass
+        """POET's terrain from the level's parameters, in the structure of gymnasium's hardcore generator,
+        as in the paper's reference implementation: 200 steps, a 20-step start pad, grass
         stretches of 5-9 steps, after each of which one enabled obstacle is drawn uniformly. Roughness
         scales the grass slope; a pit is 1 + U(gap) steps wide and 4 deep; a stump 1 step wide and
         U(height) high (the rest of its stretch stays flat, as in the reference); stairs U(height) per
@@ -652,7 +652,7 @@ def default_num_workers() -> int:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The teacher's MDP (SPEC 3, PAIRED's adversary): one parameter per step.
+# The teacher's MDP (PAIRED's adversary): one parameter per step.
 # ---------------------------------------------------------------------------------------------------
 class WalkerTeacherMDP:
     """PAIRED's adversary MDP over n levels in lockstep: 8 steps, step t sets parameter t (PARAM_NAMES
@@ -763,7 +763,7 @@ def _draw_course(walker: DesignedBipedalWalker, trace: np.ndarray | None) -> np.
 # The student env.
 # ---------------------------------------------------------------------------------------------------
 class WalkerEnv:
-    """The walker UPOMDP over `num_envs` copies (SPEC 3).
+    """The walker UPOMDP over `num_envs` copies.
 
     Observation: {"state": float32 [N, 24]}, gymnasium's (hull angle, angular velocity, x/y velocity,
     hip/knee angles and speeds, leg contacts, 10 lidar fractions). Action: [N, 4] in [-1, 1] (clipped:
@@ -797,7 +797,7 @@ class WalkerEnv:
         self.Levels = WalkerLevels
         self.Student = WalkerStudent
         self.Teacher = WalkerTeacher
-        self.solved_threshold = 230.0  # SPEC 3: solved = return > 230
+        self.solved_threshold = 230.0  # solved = return > 230
         self.validation_levels = ("BipedalWalker-v3", "Stairs", "PitGap")
         self.level_metric_names = LEVEL_METRIC_NAMES
         self.training = True  # no training-only reward shaping for the walker; kept for the interface
@@ -896,7 +896,7 @@ class WalkerEnv:
         return WalkerLevels(params, rng.integers(0, SEED_BOUND, n), np.full(n, CUSTOM, np.int8))
 
     def easy_levels(self, n: int, rng: np.random.Generator) -> WalkerLevels:
-        """ACCEL's "easy" generator (SPEC 3): roughness U[0, 0.6]; pit [0, 0.8], stump [0, 0.4],
+        """ACCEL's "easy" generator: roughness U[0, 0.6]; pit [0, 0.8], stump [0, 0.4],
         stair [0, 0.4], steps 1; fresh seeds."""
         params = np.tile(EASY_PARAMS, (n, 1))
         params[:, ROUGHNESS] = rng.uniform(0.0, EASY_ROUGHNESS_HIGH, n)
@@ -915,7 +915,7 @@ class WalkerEnv:
         return levels
 
     def mutate(self, levels: WalkerLevels, rng: np.random.Generator, num_edits: int = NUM_EDITS) -> WalkerLevels:
-        """ACCEL's walker editor (SPEC 3): `num_edits` edits per level, each picking a parameter and a
+        """ACCEL's walker editor: `num_edits` edits per level, each picking a parameter and a
         direction in {-1, 0, +1} and moving it by its edit size (roughness: U(0, 0.6)); clipped to the
         full ranges, pairs kept ordered, a new terrain seed. The child is a CUSTOM course."""
         params = np.array(levels.params, dtype=np.float64)
@@ -929,7 +929,7 @@ class WalkerEnv:
         return WalkerLevels(order_pairs(params), rng.integers(0, SEED_BOUND, n), np.full(n, CUSTOM, np.int8))
 
     def test_levels(self) -> HeldOutCourses:
-        """The held-out courses (SPEC 3), each a fresh terrain seed per generated level."""
+        """The held-out courses, each a fresh terrain seed per generated level."""
         return HeldOutCourses(
             {name: HeldOutLevel(_course_generator(params, course), max_steps) for name, (params, course, max_steps) in HELD_OUT_COURSES.items()}
         )
@@ -994,7 +994,7 @@ def _course_generator(params: np.ndarray, course: int):
 
 
 # ---------------------------------------------------------------------------------------------------
-# Networks (SPEC 3), with the calling convention of DESIGN.md.
+# Networks: the paper's, with the calling convention of envs/nets.py.
 # ---------------------------------------------------------------------------------------------------
 def _mlp(inputs: int, outputs: int, gain: float, hidden: int = 64) -> nn.Sequential:
     """inputs -> 64 -> 64 (tanh) -> outputs, orthogonal init (sqrt(2) hidden, `gain` for the head)."""

@@ -152,9 +152,13 @@ def test_replay_updates_edit_and_count_two_rollouts(finished, key):
 
 @pytest.mark.parametrize("key", ["evo", "evo-flex", "evo-bibc"])
 def test_paired_evo_counts_both_students_steps(finished, key):
+    """Catches student steps miscounted: both students play a training rollout and the children's
+    evaluation rollout on a replay update, one scoring rollout each on new levels."""
     rows = read_metrics(only_run_dir(finished[key][1]))
+    student_steps = 0
     for r in rows:
-        assert int(r["student_steps"]) == 2 * int(r["env_steps"])
+        student_steps += (4 if r["replay"] == "1" else 2) * BATCH
+        assert int(r["student_steps"]) == student_steps, r
         for name in ("protagonist", "antagonist"):
             assert 0 <= float(r[f"{name}_return"]) <= 1 and 0 <= float(r[f"{name}_solved"]) <= 1
             assert (r[f"{name}_entropy"] != "") == (r["replay"] == "1")  # students train on replay only
