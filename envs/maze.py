@@ -1,4 +1,4 @@
-"""The maze UPOMDP (SPEC section 1): MiniGrid-style navigation on levels a teacher designs.
+"""The maze UPOMDP: MiniGrid-style navigation on levels a teacher designs.
 
 Everything an algorithm script needs for the maze lives here: the level batch, the student env
 (all copies stepped at once with numpy), the teacher's MDP (PAIRED's adversary), the DR and empty-room
@@ -12,6 +12,7 @@ Directions: 0 east (+x), 1 south (+y), 2 west, 3 north.
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -20,6 +21,7 @@ from torch import nn
 
 from envs.levels import HeldOutLevel, LevelBatch
 from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
+from envs.sparse_projection import RunningConvGates, sparse_gate_inputs
 
 EMPTY, WALL, GOAL = 0, 1, 2
 # MiniGrid's (type, colour, state) encoding of each cell code; the networks divide it by 10.
@@ -67,7 +69,7 @@ def random_free_cells(free: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The teacher's MDP (SPEC 1, "Teacher MDP"): one interior cell per step, walls first, then goal, agent.
+# The teacher's MDP: one interior cell per step, walls first, then goal, agent.
 # ---------------------------------------------------------------------------------------------------
 class MazeTeacherMDP:
     """PAIRED's adversary MDP over n mazes at once, all stepping in lockstep.
@@ -145,7 +147,7 @@ class MazeTeacherMDP:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Level metrics (SPEC 1): walls, passable, shortest path length by BFS (interior cells + 1 if none).
+# Level metrics: walls, passable, shortest path length by BFS (interior cells + 1 if none).
 # ---------------------------------------------------------------------------------------------------
 def shortest_path_lengths(levels: MazeLevels) -> np.ndarray:
     """BFS moves from agent to goal (4-connected) for every level at once; (H-2)*(W-2)+1 if impassable."""
@@ -291,7 +293,7 @@ class MazeEnv:
         self.Levels = MazeLevels
         self.Student = MazeStudent
         self.Teacher = MazeTeacher
-        self.solved_threshold = 0.0  # solved = return > 0 (SPEC 5)
+        self.solved_threshold = 0.0  # solved = return > 0
         self.validation_levels = ("SixteenRooms", "Labyrinth", "Maze")  # the paper's validation mazes
         self.level_metric_names = ("walls", "passable", "path_length")
         self.level_generators = {"random": self.random_levels, "empty": self.empty_levels}
@@ -442,7 +444,7 @@ class MazeEnv:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Networks (SPEC 1, "Networks (maze)"), with the calling convention of DESIGN.md.
+# Networks: the paper's, with the calling convention of envs/nets.py.
 # ---------------------------------------------------------------------------------------------------
 def conv_matrix_indices(channels_in: int, channels_out: int, size: int, kernel: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Where each weight of a `kernel` x `kernel` convolution (no padding, stride 1) over a `size` x
@@ -519,20 +521,75 @@ class MazeStudent(RecurrentCategoricalActorCritic):
 class MazeTeacher(RecurrentCategoricalActorCritic):
     """Conv 3->128 (3x3) on the 15x15 grid -> 21632, ReLU; time one-hot -> Linear 10; noise (50);
     LSTM 256; actor 256 -> 32 tanh -> 169 logits; critic 256 -> 32 tanh -> 1. `conv_channels` below
-    the paper's 128 gives a lighter teacher (its LSTM input shrinks in proportion)."""
+    the paper's 128 gives a lighter teacher (its LSTM input shrinks in proportion).
+
+    The LSTM's input projection W_ih x (22M weights at 128 channels) is computed from the cells of the
+    grid that changed since the previous step (`envs/sparse_projection.py`): a teacher step changes at
+    most one cell of the image, so a training sequence or an acting step projects only the conv windows
+    over the changed cells, plus the empty grid every episode starts from once. It equals the dense product of `features`
+    (tests/test_sparse_projection.py checks outputs and gradients). With `sparse_inputs` False, or
+    CLEANUED_DENSE_TEACHER=1 in the environment when the net is built, the net runs the plain dense
+    path: `features`, then the LSTM."""
+
+    image_scale = 10.0  # the grid's MiniGrid codes are divided by 10
 
     def __init__(self, num_steps: int, size: int = TRAIN_SIZE, hidden_size: int = 256, conv_channels: int = 128):
         super().__init__()
         self.num_steps = num_steps
+        self.sparse_inputs = os.environ.get("CLEANUED_DENSE_TEACHER") != "1"
+        self.register_buffer("empty_image", torch.as_tensor(CELL_ENCODING[empty_grid(1, size)[0].astype(np.uint8)]), persistent=False)
         self.conv = nn.Sequential(layer_init(nn.Conv2d(3, conv_channels, 3)), nn.ReLU(), nn.Flatten())
         self.time_embed = layer_init(nn.Linear(num_steps, 10))
         # Its 21692-wide input makes the input projection dominate: project all steps at once.
         self.lstm = ResettableLSTM(conv_channels * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size, project_inputs_first=True)
+        # W_ih is stored transposed (same values and shape, strides (1, 4H)): the sparse path reads each
+        # position's weights as rows of W_ih^T and returns the gradient in that layout, with no transposed
+        # copy of the 22M weights in either direction.
+        weight_ih = self.lstm.lstm.weight_ih_l0
+        weight_ih.data = weight_ih.data.t().contiguous().t()
         num_actions = (size - 2) ** 2
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, num_actions), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
 
     def features(self, obs: dict) -> torch.Tensor:
-        image = obs["image"].permute(0, 3, 1, 2).float() / 10.0
+        image = obs["image"].permute(0, 3, 1, 2).float() / self.image_scale
+        return torch.cat([self.conv(image), self.dense_features(obs)], dim=1)
+
+    def dense_features(self, obs: dict) -> torch.Tensor:
+        """The LSTM input's small dense part: the time embedding (10) and the noise (50)."""
         time = nn.functional.one_hot(obs["time"].long(), self.num_steps).float()
-        return torch.cat([self.conv(image), self.time_embed(time), obs["noise"].float()], dim=1)
+        return torch.cat([self.time_embed(time), obs["noise"].float()], dim=1)
+
+    def _hidden(self, obs: dict, state, done):
+        """A training sequence (T > 1) with `sparse_inputs`: the gate inputs from the changed cells, then
+        the LSTM's recurrence; otherwise (or if too many cells change) the dense path."""
+        num_copies = state[0].shape[1]
+        if self.sparse_inputs and len(obs["image"]) > num_copies:
+            lstm = self.lstm.lstm
+            projected = sparse_gate_inputs(self.conv[0], self.image_scale, self.empty_image, obs["image"], self.dense_features(obs),
+                                           lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0, num_copies)
+            if projected is not None:
+                return self.lstm.run_projected(projected, state, done), None
+        return super()._hidden(obs, state, done)
+
+    def acting_weights(self) -> dict:
+        """Every recurrent net's, plus for the sparse path: the running conv gates (W f(I) per copy,
+        on W_ih^T's conv rows as [C, P, 4H]), the time's share of the gates per step with the LSTM's
+        biases [num_steps, 4H] and the noise's input weights [50, 4H]."""
+        weights = super().acting_weights()
+        lstm_input = weights["lstm_input"]
+        time_size = self.time_embed.out_features
+        conv_size = len(lstm_input) - time_size - NOISE_DIM
+        conv_weight_t = lstm_input[:conv_size].view(self.conv[0].out_channels, -1, lstm_input.shape[1])
+        start_gates = self.conv(self.empty_image.permute(2, 0, 1).unsqueeze(0).float() / self.image_scale)[0] @ lstm_input[:conv_size]
+        running = RunningConvGates(self.conv[0], self.image_scale, self.empty_image, conv_weight_t, start_gates)
+        time_table = self.time_embed.weight.t() + self.time_embed.bias
+        time_gates = torch.addmm(weights["lstm_bias"], time_table, lstm_input[conv_size : conv_size + time_size])
+        return {**weights, "running_conv_gates": running, "time_gates": time_gates, "noise_input": lstm_input[conv_size + time_size :]}
+
+    def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
+        """W_ih x + b as the running conv gates of the grid, the time's row and the noise's product."""
+        if not self.sparse_inputs:
+            return super().acting_gate_inputs(obs, weights)
+        gates = weights["running_conv_gates"](obs["image"])
+        return gates.addmm_(obs["noise"].float(), weights["noise_input"]).add_(weights["time_gates"].index_select(0, obs["time"].long()))

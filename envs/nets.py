@@ -1,6 +1,6 @@
 """Network parts shared by the envs' networks: layer init and an LSTM that resets at episode starts.
 
-Every network of `envs` follows one calling convention (DESIGN.md), so an algorithm script does not care
+Every network of `envs` follows one calling convention, so an algorithm script does not care
 which env it runs. Inputs are flattened time-major batches: a rollout step is T=1 row per env copy, a
 training sequence is T rows per copy laid out as [T * N] (row t * N + n is step t of copy n).
 """
@@ -15,7 +15,7 @@ from torch.distributions import Categorical, Distribution
 
 
 def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) -> nn.Module:
-    """Orthogonal weights, constant bias (SPEC 1: gain sqrt(2) hidden, 0.01 policy, 1 value)."""
+    """Orthogonal weights, constant bias (gain sqrt(2) hidden, 0.01 policy, 1 value)."""
     nn.init.orthogonal_(layer.weight, gain)
     nn.init.constant_(layer.bias, bias)
     return layer
@@ -160,18 +160,24 @@ class ResettableLSTM(nn.Module):
             h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
         if self.project_inputs_first:
-            projected = nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0).view(steps, num_copies, -1)
-            keep = (1.0 - done.float()).view(steps, num_copies, 1)
-            h = MaskedLSTMRecurrence.apply(projected, lstm.weight_hh_l0, state[0][0], state[1][0], keep)
-            return h.view(steps * num_copies, self.hidden_size), None
+            return self.run_projected(nn.functional.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0), state, done), None
         return self._run_with_reset_steps(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
+
+    def run_projected(self, projected: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
+        """The T > 1 path of `project_inputs_first` from the inputs' share of the gates, projected =
+        W_ih x + b_ih + b_hh [T * N, 4H] (a net may compute it its own way): h [T * N, H]."""
+        num_copies = state[0].shape[1]
+        steps = len(projected) // num_copies
+        keep = (1.0 - done.float()).view(steps, num_copies, 1)
+        h = MaskedLSTMRecurrence.apply(projected.view(steps, num_copies, -1), self.lstm.weight_hh_l0, state[0][0], state[1][0], keep)
+        return h.view(steps * num_copies, self.hidden_size)
 
     def acting_weights(self) -> dict[str, torch.Tensor]:
         """For `acting_step`: W_ih^T, W_hh^T and b_ih + b_hh, their gate columns reordered to i, f, o, g
         (the three sigmoids side by side)."""
         lstm = self.lstm
         order = torch.arange(4 * self.hidden_size, device=lstm.weight_ih_l0.device).view(4, -1)[[0, 1, 3, 2]].reshape(-1)
-        return {"lstm_input": lstm.weight_ih_l0[order].t().contiguous(), "lstm_recurrent": lstm.weight_hh_l0[order].t().contiguous(),
+        return {"lstm_input": lstm.weight_ih_l0.t().index_select(1, order), "lstm_recurrent": lstm.weight_hh_l0[order].t().contiguous(),
                 "lstm_bias": (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order]}
 
     def acting_step(self, gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict) -> tuple[torch.Tensor, tuple]:
