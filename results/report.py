@@ -4,7 +4,8 @@
 
 reads DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
 summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
-training.png (c) and levels.png (d).
+training.png (c), levels.png (d) and true_regret.png (e: the true regret of the training levels and
+its rank correlation with each algorithm's own score, for the runs that logged it).
 """
 
 from __future__ import annotations
@@ -184,12 +185,13 @@ def curve(rows: list[dict], columns: tuple, smooth: bool):
     return steps, values
 
 
-def plot_training(runs: dict, path: str) -> None:
+def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailing mean over {smoothing} updates except "
+                  "validation; band: ± s.e. over seeds)") -> None:
     """(c) Training curves, a band of ± one standard error over seeds around their mean, one quantity per
     panel on its own axis."""
     colour = colours(runs)
-    fig, axes = plt.subplots(1, len(CURVES), figsize=(4.2 * len(CURVES), 3.6))
-    for ax, (title, columns, limits) in zip(axes, CURVES):
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6))
+    for ax, (title_of_panel, columns, limits) in zip(axes, panels):
         for name, seeds in runs.items():
             curves = [c for c in (curve(s["metrics"], columns, smooth=columns != ("val_solved_rate",)) for s in seeds.values()) if c]
             if not curves:
@@ -201,15 +203,30 @@ def plot_training(runs: dict, path: str) -> None:
             se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
             ax.plot(grid / 1e6, mean, color=colour[name], label=EXPERIMENTS.get(name, name))
             ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour[name], alpha=0.2)
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title_of_panel, fontsize=10)
         ax.set_xlabel("protagonist env steps (M)")
         if limits:
             ax.set_ylim(*limits)
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"Training (trailing mean over {SMOOTHING} updates except validation; band: ± s.e. over seeds)")
+    fig.suptitle(title.format(smoothing=SMOOTHING))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+REGRET_CURVES = [("true regret of the training levels", ("true_regret",), None),
+                 ("its rank correlation with the score", ("score_true_regret_correlation",), (-1, 1)),
+                 ("share of training levels solvable", ("solvable",), (0, 1))]
+
+
+def plot_true_regret(runs: dict, path: str) -> None:
+    """(e) How well each curriculum's score tracks the true regret (optimal return - the student's
+    return, from a solver of each training level), for the runs that logged it."""
+    logged = {name: {seed: run for seed, run in seeds.items() if run["metrics"] and "true_regret" in run["metrics"][0]}
+              for name, seeds in runs.items()}
+    logged = {name: seeds for name, seeds in logged.items() if seeds}
+    if logged:
+        plot_training(logged, path, REGRET_CURVES, "True regret (trailing mean over {smoothing} updates; band: ± s.e. over seeds)")
 
 
 def plot_levels(runs: dict, path: str) -> None:
@@ -246,6 +263,7 @@ def main(argv=None) -> None:
     plot_aggregates(summary, os.path.join(args.directory, "aggregates.png"))
     plot_training(runs, os.path.join(args.directory, "training.png"))
     plot_levels(runs, os.path.join(args.directory, "levels.png"))
+    plot_true_regret(runs, os.path.join(args.directory, "true_regret.png"))
     for name, s in summary.items():
         print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seeds  mean solved {cell(s['mean_solved_rate'], s['se'])}  "
               f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")

@@ -17,13 +17,15 @@ def fake_run(folder, solved: dict, teacher: bool) -> None:
     results["mean"] = {"solved_rate": sum(r["solved_rate"] for r in results.values()) / 12, "mean_return": 0.0}
     json.dump(results, open(os.path.join(folder, "eval.json"), "w"))
     return_column = "protagonist_return" if teacher else "mean_return"
-    columns = ["update", "env_steps", return_column, "val_solved_rate", "walls", "path_length", *(["teacher_entropy"] if teacher else [])]
+    columns = ["update", "env_steps", return_column, "val_solved_rate", "walls", "path_length",
+               *(["teacher_entropy"] if teacher else ["true_regret", "score_true_regret_correlation", "solvable"])]
     with open(os.path.join(folder, "metrics.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)
         writer.writeheader()
         for update in range(1, 41):
             writer.writerow({"update": update, "env_steps": 8192 * update, return_column: update / 40, "walls": 20, "path_length": 12,
-                             "val_solved_rate": 0.5 if update % 10 == 0 else "", **({"teacher_entropy": 5.0} if teacher else {})})
+                             "val_solved_rate": 0.5 if update % 10 == 0 else "",
+                             **({"teacher_entropy": 5.0} if teacher else {"true_regret": 0.5, "score_true_regret_correlation": -0.2, "solvable": 1.0})})
 
 
 def test_report_on_hand_worked_runs(tmp_path):
@@ -52,7 +54,7 @@ def test_report_on_hand_worked_runs(tmp_path):
     assert "| SixteenRooms | 0.40 ± 0.20 | 0.50 ± 0.50 |" in table
     assert "| **mean** | **0.40 ± 0.20** | **0.04 ± 0.04** |" in table
     assert "| **mean** | 0.61 ± 0.03 | 0.21 ± 0.07 |" in table  # the paper's ACCEL and PAIRED
-    for name in ("solved_per_maze.png", "aggregates.png", "training.png"):
+    for name in ("solved_per_maze.png", "aggregates.png", "training.png", "true_regret.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
 
 
