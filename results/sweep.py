@@ -18,7 +18,8 @@ command line per experiment:
 Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scripts' own run directory,
 with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
 resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
-continued by launching it again. `--collect DEST` copies each finished run's args.json, metrics.csv and
+continued by launching it again. A run in progress holds a lock file (<workdir>/locks/), so a second
+launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv and
 eval.json to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
 plus the final student's weights of seed 1 as agent.pt.
 """
@@ -26,6 +27,7 @@ plus the final student's weights of seed 1 as agent.pt.
 from __future__ import annotations
 
 import argparse
+import fcntl
 import glob
 import os
 import shutil
@@ -82,10 +84,23 @@ def run_directory(workdir: str, env: str, experiment: str, seed: int) -> str | N
 
 
 def run_one(job: dict) -> str:
-    """One run, continued where it stands: skipped if finished, resumed from its checkpoint if cut off,
-    else started (a directory left without a checkpoint is started anew). Returns what it did."""
+    """One run, continued where it stands: skipped if finished or if another launcher is running it
+    (it holds the run's lock file), resumed from its checkpoint if cut off, else started (a directory
+    left without a checkpoint is started anew). Returns what it did."""
     command, workdir = job["command"], job["workdir"]
     env = command[command.index("--env") + 1]
+    os.makedirs(os.path.join(workdir, "locks"), exist_ok=True)
+    with open(os.path.join(workdir, "locks", f"{env}__{job['experiment']}__{job['seed']}.lock"), "w") as lock:
+        try:  # held until this run ends, released if its launcher dies
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return f"running elsewhere: {job['experiment']} seed {job['seed']}"
+        return run_unlocked(job, env)
+
+
+def run_unlocked(job: dict, env: str) -> str:
+    """run_one's work, under the run's lock."""
+    command, workdir = job["command"], job["workdir"]
     existing = run_directory(workdir, env, job["experiment"], job["seed"])
     if existing and os.path.isfile(os.path.join(existing, "eval.json")):
         return f"finished earlier: {existing}"

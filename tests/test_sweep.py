@@ -93,3 +93,16 @@ def test_slurm_without_slurm_is_refused(tmp_path):
     result = sweep(path, "--cluster", "slurm", "--workdir", str(tmp_path), env={**os.environ, "PATH": "/usr/bin:/bin"})
     assert result.returncode == 2 and result.stderr.startswith("error: --cluster slurm needs SLURM")
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_run_in_progress_elsewhere_is_skipped(tmp_path):
+    """A second launcher skips a run whose lock another process holds, and starts nothing for it."""
+    import fcntl
+
+    path = sweep_file(tmp_path / "sweep.toml", {"dr": ["plr.py", *TINY, "--replay-prob", "0"]})
+    (tmp_path / "locks").mkdir()
+    with open(tmp_path / "locks" / "maze__dr__1.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        result = sweep(path, "--workdir", str(tmp_path))
+    assert result.returncode == 0 and "running elsewhere: dr seed 1" in result.stdout, result.stdout + result.stderr
+    assert not (tmp_path / "runs").exists()
