@@ -33,6 +33,8 @@ import numpy as np
 import torch
 import torch.nn as nn
 import tyro
+from matplotlib.image import imread
+from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
@@ -573,6 +575,20 @@ def save_checkpoint(path: str, state: dict) -> None:
     os.replace(tmp, path)
 
 
+def log_scalars(tensorboard, row: dict, step: int) -> None:
+    """One update's metrics in TensorBoard (`tensorboard --logdir runs`): losses, entropies and KL
+    statistics under losses/, everything else under charts/."""
+    for name, value in row.items():
+        if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value):
+            group = "losses" if any(part in name for part in ("loss", "entropy", "kl", "clipfrac")) else "charts"
+            tensorboard.add_scalar(f"{group}/{name}", value, step)
+
+
+def log_image(tensorboard, path: str, step: int) -> None:
+    """A saved PNG of the curriculum's levels in TensorBoard's images."""
+    tensorboard.add_image("curriculum/levels", imread(path)[..., :3], step, dataformats="HWC")
+
+
 def episode_mean(returns_per_level, threshold=None) -> float:
     flat = [r for rs in returns_per_level for r in rs]
     if not flat:
@@ -638,6 +654,8 @@ if __name__ == "__main__":
 
     metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
     metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
+    # TensorBoard events beside metrics.csv; a resumed run drops those logged after its checkpoint, as metrics.csv
+    tensorboard = SummaryWriter(run_dir, purge_step=global_step + 1 if args.resume else None)
     update = start_update - 1
     while global_step < args.total_timesteps:
         update += 1
@@ -712,6 +730,7 @@ if __name__ == "__main__":
             print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
         metrics_writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
         metrics_file.flush()
+        log_scalars(tensorboard, row, global_step)
         if args.track:
             wandb.log(row, step=global_step)
 
@@ -724,6 +743,7 @@ if __name__ == "__main__":
             top = np.argsort(-buffer.scores)[:32]
             save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
                             titles=[f"regret {s:.3f}" for s in buffer.scores[top]])
+            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step)
         if update % args.checkpoint_interval == 0 or last_update:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 **{name: a.state_dict() for name, a in students.items()},
@@ -733,6 +753,7 @@ if __name__ == "__main__":
                 "global_step": global_step, "student_steps": student_steps, "gradient_updates": gradient_updates, "elapsed": elapsed,
                 **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
     metrics_file.close()
+    tensorboard.close()
     env.close()
 
     # Final zero-shot evaluation of the protagonist on every held-out level.
