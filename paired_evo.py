@@ -51,6 +51,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    torch_deterministic: bool = True
+    """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
@@ -599,6 +601,7 @@ def episode_mean(returns_per_level, threshold=None) -> float:
 if __name__ == "__main__":
     args = resolve_args(parse_command_line())
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    torch.backends.cudnn.deterministic = args.torch_deterministic
     batch_size = args.num_envs * args.num_steps
     score_levels = flexible_regret if args.flexible else regret
     mode = ("FlexPAIRED+Evo" if args.flexible else "PAIRED+Evo") + (("+BiBC" if args.bidirectional else "+UniBC") if args.kl_coef > 0 else "")
@@ -619,7 +622,9 @@ if __name__ == "__main__":
 
     if args.resume:
         run_dir = args.resume
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
+        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
+        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
+        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
         for name in students:
             students[name].load_state_dict(checkpoint[name])
             optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
@@ -630,6 +635,8 @@ if __name__ == "__main__":
         env.rng.bit_generator.state = checkpoint["env_rng"]
         np.random.set_state(checkpoint["numpy_global"])
         torch.set_rng_state(checkpoint["torch"])
+        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
         start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
         student_steps, gradient_updates = checkpoint["student_steps"], checkpoint["gradient_updates"]
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
@@ -749,7 +756,8 @@ if __name__ == "__main__":
                 **{name: a.state_dict() for name, a in students.items()},
                 **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
                 "buffer": buffer.state_dict(), "level_rng": level_rng.bit_generator.state, "env_rng": env.rng.bit_generator.state,
-                "numpy_global": np.random.get_state(), "torch": torch.get_rng_state(), "update": update,
+                "numpy_global": np.random.get_state(), "torch": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None, "update": update,
                 "global_step": global_step, "student_steps": student_steps, "gradient_updates": gradient_updates, "elapsed": elapsed,
                 **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
     metrics_file.close()

@@ -46,6 +46,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    torch_deterministic: bool = True
+    """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
@@ -479,6 +481,7 @@ def episode_mean(returns_per_level, threshold=None) -> float:
 if __name__ == "__main__":
     args = resolve_args(parse_command_line())
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    torch.backends.cudnn.deterministic = args.torch_deterministic
     batch_size = args.num_envs * args.num_steps
     num_updates = math.ceil(args.total_timesteps / batch_size)
 
@@ -502,7 +505,9 @@ if __name__ == "__main__":
 
     if args.resume:
         run_dir = args.resume
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
+        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
+        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
+        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
         for name in agents:
             agents[name].load_state_dict(checkpoint[name])
             optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
@@ -511,6 +516,8 @@ if __name__ == "__main__":
         env.rng.bit_generator.state = checkpoint["env_rng"]
         np.random.set_state(checkpoint["numpy_global"])
         torch.set_rng_state(checkpoint["torch"])
+        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
         start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
@@ -608,7 +615,9 @@ if __name__ == "__main__":
                 **{name: a.state_dict() for name, a in agents.items()},
                 **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
                 "env_rng": env.rng.bit_generator.state, "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed,
+                "torch": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+                "update": update, "global_step": global_step, "elapsed": elapsed,
                 **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
     metrics_file.close()
     tensorboard.close()

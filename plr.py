@@ -53,6 +53,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    torch_deterministic: bool = True
+    """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
@@ -565,6 +567,7 @@ def rng_state(rngs: dict) -> dict:
 if __name__ == "__main__":
     args = resolve_args(parse_command_line())
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    torch.backends.cudnn.deterministic = args.torch_deterministic
     batch_size = args.num_envs * args.num_steps
     num_updates = math.ceil(args.total_timesteps / batch_size)
     domain_randomization = args.replay_prob == 0.0
@@ -585,7 +588,9 @@ if __name__ == "__main__":
 
     if args.resume:
         run_dir = args.resume
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
+        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
+        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
+        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
         agent.load_state_dict(checkpoint["agent"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         buffer.load_state_dict(checkpoint["buffer"], env.Levels)
@@ -595,6 +600,8 @@ if __name__ == "__main__":
         env.rng.bit_generator.state = checkpoint["rng"]["env"]
         np.random.set_state(checkpoint["numpy_global"])
         torch.set_rng_state(checkpoint["torch"])
+        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
         start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
         with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
             kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
@@ -684,7 +691,9 @@ if __name__ == "__main__":
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),
                 "rng": rng_state({"level": level_rng, "env": env.rng}), "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(), "update": update, "global_step": global_step, "elapsed": elapsed,
+                "torch": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+                "update": update, "global_step": global_step, "elapsed": elapsed,
                 "normalizer": None if normalizer is None else normalizer.state_dict()})
     metrics_file.close()
     tensorboard.close()

@@ -10,6 +10,7 @@ import sys
 import time
 
 import pytest
+import torch
 
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "plr.py")
 TINY = ["--num-envs", "4", "--num-steps", "32", "--level-buffer-size", "8", "--eval-episodes", "2",
@@ -45,6 +46,9 @@ def test_modes_write_a_complete_run(tmp_path, mode, flags, trains_every_update):
         assert os.path.isfile(os.path.join(run_dir, name)), name
     rows = read_metrics(run_dir)
     assert [int(r["update"]) for r in rows] == list(range(1, 7))
+    checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
+    assert "cuda_rng" in checkpoint  # a GPU run resumes its CUDA random stream too (None on a CPU)
+    assert json.load(open(os.path.join(run_dir, "args.json")))["torch_deterministic"] is True
     assert all(r["trained"] == "1" for r in rows) == trains_every_update
     evaluation = json.load(open(os.path.join(run_dir, "eval.json")))
     assert len(evaluation) == 13  # 12 held-out mazes and their mean
