@@ -45,7 +45,7 @@ class EpisodesOfKnownLength:
         return {"x": np.zeros((len(LENGTHS), 1), np.float32)}, reward, ended & ~truncated, truncated, {}
 
     def close(self):
-        pass
+        """Nothing to release (the evaluation closes every env it makes)."""
 
 
 class IdleAgent:
