@@ -361,9 +361,15 @@ class MazeEnv:
         """The levels with every random start direction drawn now (PAIRED's two students then play
         each level from the same start, so their regret compares like with like)."""
         drawn = levels.copy()
-        random = drawn.agent_dir < 0
-        drawn.agent_dir[random] = self.rng.integers(0, 4, int(random.sum()))
+        drawn.agent_dir = self.drawn_directions(levels.agent_dir).astype(np.int8)
         return drawn
+
+    def drawn_directions(self, agent_dir: np.ndarray) -> np.ndarray:
+        """The start directions with every random one (RANDOM_DIRECTION) drawn from the env's generator."""
+        directions = agent_dir.astype(np.int64)
+        random = directions < 0
+        directions[random] = self.rng.integers(0, 4, int(random.sum()))
+        return directions
 
     def optimal_returns(self, levels: MazeLevels) -> np.ndarray:
         """The best achievable return of each level from its start (see `optimal_returns`): with the
@@ -395,7 +401,7 @@ class MazeEnv:
         self.codes = codes.reshape(-1)
         self.base = index * self.height * self.width
         self.start = (levels.agent[:, 1] + pad) * self.width + levels.agent[:, 0] + pad
-        self.start_dir = self.draw_starts(levels).agent_dir.astype(np.int64)
+        self.start_dir = self.drawn_directions(levels.agent_dir)
         self.move = DIRECTION_VECTORS[:, 0] + DIRECTION_VECTORS[:, 1] * self.width
         forward = np.arange(VIEW_SIZE - 1, -1, -1)[:, None]  # row 0 is the farthest
         lateral = np.arange(VIEW_SIZE)[None, :] - VIEW_SIZE // 2
