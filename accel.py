@@ -14,36 +14,41 @@ every replayed level once).
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
-import io
 import json
 import os
-import re
-import sys
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
 
+# Before torch loads OpenMP: idle threads sleep instead of spinning, which on a machine busy with other work
+# made two threads wait on each other at every op (CarRacing several times slower; docs/performance.md).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
-from matplotlib.image import imread
 from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
+from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
+from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
+                       true_regret_stats)
+from envs.video import capture_videos
 
 
+# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
+# of the chosen env.
 @dataclass
 class Args:
-    env: str = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
+    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
+    defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "accel"
-    """name of this experiment, part of the run directory's name"""
+    """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
@@ -54,39 +59,41 @@ class Args:
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
     """the wandb project, with --track"""
+    capture_video: bool = False
+    """after the final evaluation, write a GIF of the agent on each held-out level to the run's videos/"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
     f1_tracks: Optional[str] = None
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO (None = the paper's value for --env)
-    gradient_updates: Optional[int] = None
+    # PPO (defaults: the paper's values for --env)
+    gradient_updates: int = 20_000
     """PPO updates to train for, one per replay; 0 for no limit (paper: maze 20k, about 370M env steps)"""
-    total_timesteps: Optional[int] = None
+    total_timesteps: int = 0
     """env steps to simulate in all (training, scoring and edit evaluation); 0 for no limit. The run stops
     at whichever budget it reaches first (paper: maze no step limit, carracing 5.5M, walker 960M)"""
-    num_envs: Optional[int] = None
+    num_envs: int = 32
     """parallel env copies, one level each per update (paper: maze 32, carracing and walker 16)"""
-    num_steps: Optional[int] = None
+    num_steps: int = 256
     """steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
-    learning_rate: Optional[float] = None
+    learning_rate: float = 1e-4
     """Adam learning rate (paper: maze 1e-4, carracing and walker 3e-4)"""
-    gamma: Optional[float] = None
+    gamma: float = 0.995
     """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
-    gae_lambda: Optional[float] = None
+    gae_lambda: float = 0.95
     """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
-    num_minibatches: Optional[int] = None
+    num_minibatches: int = 1
     """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
-    update_epochs: Optional[int] = None
+    update_epochs: int = 5
     """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
-    ent_coef: Optional[float] = None
+    ent_coef: float = 0.0
     """entropy bonus coefficient (paper: 0)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    value_loss: Literal["clipped", "mse", "huber"] = "clipped"
     """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
-    normalize_returns: Optional[bool] = None
+    normalize_returns: bool = False
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
@@ -96,21 +103,21 @@ class Args:
     """Adam epsilon"""
 
     # Robust PLR's level replay
-    replay_prob: Optional[float] = None
+    replay_prob: float = 0.8
     """probability of a replay update once the buffer is full enough (paper: maze 0.8, walker 0.9)"""
-    level_buffer_size: Optional[int] = None
+    level_buffer_size: int = 4000
     """levels kept in the buffer (paper: maze 4000, walker 1000; carracing 10000)"""
-    temperature: Optional[float] = None
+    temperature: float = 0.3
     """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
-    staleness_coef: Optional[float] = None
+    staleness_coef: float = 0.5
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
     # Editing
-    generator: Optional[str] = None
+    generator: Literal["random", "empty", "easy", "sketch"] = "random"
     """new levels: random (the DR generator, maze default), empty rooms (maze, ACCEL-empty), easy (walker default) or sketch
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
     are continuous and cannot be edited)"""
-    num_edits: Optional[int] = None
+    num_edits: int = 5
     """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
     """parents: the easy (lowest-score) half of the replayed batch, two children each; or every replayed level once"""
@@ -122,7 +129,7 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
-    eval_episodes: Optional[int] = None
+    eval_episodes: int = 100
     """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 50
     """updates between checkpoints (written atomically)"""
@@ -150,38 +157,27 @@ PAPER_DEFAULTS = {
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("sketch", "random"), "walker": ("random", "easy")}
 
-
-def fail(message: str) -> None:
-    """Bad input: one clear line, exit status 2, nothing written."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {}
 
 
-def parse_command_line() -> Args:
-    """The command line's options. tyro reports a bad one (a value of the wrong type, an unknown option)
-    in a box of many lines: its first paragraph becomes one `error:` line, as every other bad input."""
-    captured = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(captured):
-            args = tyro.cli(Args)
-    except SystemExit as exit_request:
-        if exit_request.code:  # (0 after --help)
-            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
-            lines = [line.strip(" │─╰╯") for line in box] + [""]
-            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
-        raise
-    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
-    return args
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options` (the command line's defaults)."""
+    return Args(env=env, **{**PAPER_DEFAULTS[env], **options})
 
 
 def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, fill unset options with the paper's values, and check them."""
+    """Load a resumed run's arguments, and check them."""
     if args.resume is not None:
         path = os.path.join(args.resume, "args.json")
         if not (os.path.isfile(path) and os.path.isfile(os.path.join(args.resume, "checkpoint.pt"))):
             fail(f"--resume {args.resume}: not a run directory (needs args.json and checkpoint.pt)")
         with open(path) as f:
             saved = json.load(f)
+        this_script = os.path.basename(__file__)
+        script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
+            fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
@@ -191,9 +187,6 @@ def resolve_args(args: Args) -> Args:
             import wandb  # noqa: F401
         except ImportError:
             fail("--track needs Weights and Biases: pip install wandb")
-    for name, value in PAPER_DEFAULTS[args.env].items():
-        if getattr(args, name) is None:
-            setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
     recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
@@ -215,23 +208,6 @@ def resolve_args(args: Args) -> Args:
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
-
-
-def check_track_file(args: Args) -> None:
-    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
-    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
-    if args.f1_tracks is not None and args.env != "carracing":
-        fail("--f1-tracks applies to --env carracing only")
-    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
-    if args.env == "carracing" and path:
-        if path != "none":
-            from envs.carracing import load_f1_tracks
-
-            try:
-                load_f1_tracks(path)
-            except ValueError as error:
-                fail(str(error))
-        os.environ["CLEANUED_F1_TRACKS"] = path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -259,32 +235,6 @@ def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_don
     per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
     scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
     return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
-
-
-def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
-    def average_ranks(x):
-        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
-
-    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
-    if ranks_a.std() == 0 or ranks_b.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
-
-
-def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
-    """How well the curriculum's score tracks the true regret, where the env knows each level's best
-    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
-    the true regret (optimal return - the student's mean return over its completed episodes; a level
-    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
-    env without a solver."""
-    if optimal is None:
-        return {}
-    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
-    true_regret = optimal - achieved
-    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
-            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
 
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
@@ -397,37 +347,6 @@ class Rollout:
         self.values = torch.zeros(num_steps, num_envs, device=device)
 
 
-class ReturnNormalizer:
-    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
-    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
-    running moments are updated with every step's discounted return of every copy."""
-
-    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
-        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
-        self.returns = np.zeros(num_envs)
-        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
-
-    def update(self, values: np.ndarray) -> None:
-        """Parallel-algorithm update of the running mean and variance with a batch of values."""
-        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
-        delta, total = batch_mean - self.mean, self.count + batch_count
-        self.mean += delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
-        self.count = total
-
-    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
-        self.returns = self.returns * self.gamma + reward
-        self.update(self.returns)
-        self.returns[ended] = 0.0
-        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
-
-    def state_dict(self) -> dict:
-        return {"mean": self.mean, "var": self.var, "count": self.count}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
-
-
 @torch.no_grad()
 def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
@@ -504,6 +423,14 @@ def minibatch_rows(recurrent: bool, args: Args, device):
         yield from order.chunk(args.num_minibatches)
 
 
+def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
+    """Rows of x's flattened time-major batch [T * n, ...]: all of them (a slice, a view) or an index
+    tensor's. index_select copies whole rows; indexing with the tensor copies CarRacing's uint8 image
+    stacks element by element, several times slower on CPU."""
+    flat = x.reshape((-1,) + x.shape[2:])
+    return flat[rows] if isinstance(rows, slice) else flat.index_select(0, rows)
+
+
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
@@ -514,13 +441,18 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     return 0.5 * ((value - ret) ** 2).mean()
 
 
+# The statistics of a PPO update, as CleanRL logs them: losses, entropy, approximate KL and clipped share.
+PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Args, update: int, device) -> dict:
     """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
     state = agent.initial_state(args.num_envs // args.num_minibatches, device)  # every rollout starts on fresh levels
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "clipfrac": 0.0}
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    finite = torch.ones((), dtype=torch.bool, device=device)
     for _ in range(args.update_epochs):
         for rows in minibatch_rows(agent.is_recurrent, args, device):
-            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
+            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
@@ -533,16 +465,15 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Ar
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
-                raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
             optimizer.step()
+            finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
             with torch.no_grad():
-                stats["policy_loss"] += policy_loss.item()
-                stats["value_loss"] += value_loss.item()
-                stats["entropy"] += entropy.mean().item()
-                stats["approx_kl"] += ((ratio - 1) - ratio.log()).mean().item()
-                stats["clipfrac"] += ((ratio - 1).abs() > args.clip_coef).float().mean().item()
-    return {k: v / (args.update_epochs * args.num_minibatches) for k, v in stats.items()}
+                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
+    if not finite:  # the run stops before its next checkpoint
+        raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
+    count = args.update_epochs * args.num_minibatches
+    return dict(zip(PPO_STATS, (sums / count).tolist()))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -558,34 +489,13 @@ def metric_names(env) -> list[str]:
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
-def save_checkpoint(path: str, state: dict) -> None:
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-
-
-def log_scalars(tensorboard, row: dict, step: int) -> None:
-    """One update's metrics in TensorBoard (`tensorboard --logdir runs`): losses, entropies and KL
-    statistics under losses/, everything else under charts/."""
-    for name, value in row.items():
-        if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value):
-            group = "losses" if any(part in name for part in ("loss", "entropy", "kl", "clipfrac")) else "charts"
-            tensorboard.add_scalar(f"{group}/{name}", value, step)
-
-
-def log_image(tensorboard, path: str, step: int) -> None:
-    """A saved PNG of the curriculum's levels in TensorBoard's images."""
-    tensorboard.add_image("curriculum/levels", imread(path)[..., :3], step, dataformats="HWC")
-
-
 def rng_state(rngs: dict) -> dict:
     return {name: rng.bit_generator.state for name, rng in rngs.items()}
 
 
 if __name__ == "__main__":
-    args = resolve_args(parse_command_line())
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    torch.backends.cudnn.deterministic = args.torch_deterministic
+    args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
+    device = select_device(args.cuda, args.torch_deterministic, args.env)
     batch_size = args.num_envs * args.num_steps
 
     env = envs.make(args.env, args.num_envs, args.seed)
@@ -634,7 +544,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump(dataclasses.asdict(args), f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
@@ -693,8 +603,8 @@ if __name__ == "__main__":
 
         level_stats = env.level_metrics(levels)
         row = {"update": update, "env_steps": global_step, "gradient_updates": gradient_updates, "sps": round(global_step / elapsed), "replay": int(replay),
-               "mean_return": np.mean(episode_returns) if episode_returns else 0.0,
-               "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else 0.0,
+               "mean_return": np.mean(episode_returns) if episode_returns else float("nan"),
+               "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else float("nan"),
                "episodes": len(episode_returns), "buffer_size": len(buffer),
                "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()},
@@ -724,7 +634,7 @@ if __name__ == "__main__":
             top = np.argsort(-buffer.scores)[:32]
             save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
                             titles=[f"score {s:.3f}" for s in buffer.scores[top]])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step)
+            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
         if update % args.checkpoint_interval == 0 or last_update:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),
@@ -745,6 +655,8 @@ if __name__ == "__main__":
         json.dump(results, f, indent=2)
     for name, r in results.items():
         print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
+    if args.capture_video:
+        capture_videos(agent, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
     save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
         ("training return", ["mean_return"]), ("solved rate", ["solved_rate", "val_solved_rate"]),
         ("level complexity", list(env.level_metric_names)), ("PLR scores", ["buffer_mean_score", "mean_score"]),

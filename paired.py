@@ -11,37 +11,42 @@ its problem P1: the teacher's entropy collapses and its mazes become sparse (Fig
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
-import io
 import json
 import math
 import os
-import re
-import sys
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
 
+# Before torch loads OpenMP: idle threads sleep instead of spinning, which on a machine busy with other work
+# made two threads wait on each other at every op (CarRacing several times slower; docs/performance.md).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
-from matplotlib.image import imread
 from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
+from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
+from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
+                       true_regret_stats)
+from envs.video import capture_videos
 
 
+# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
+# of the chosen env.
 @dataclass
 class Args:
-    env: str = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
+    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
+    defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "paired"
-    """name of this experiment, part of the run directory's name"""
+    """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
@@ -52,46 +57,48 @@ class Args:
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
     """the wandb project, with --track"""
+    capture_video: bool = False
+    """after the final evaluation, write a GIF of the agent on each held-out level to the run's videos/"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
     f1_tracks: Optional[str] = None
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO for all three agents (None = the paper's value for --env)
-    total_timesteps: Optional[int] = None
+    # PPO for all three agents (defaults: the paper's values for --env)
+    total_timesteps: int = 250_000_000
     """protagonist env steps in all; the antagonist plays as many (paper: maze 250M, carracing 5.5M)"""
-    num_envs: Optional[int] = None
+    num_envs: int = 32
     """levels the teacher designs per update, one per env copy (paper: maze 32, carracing and walker 16)"""
-    num_steps: Optional[int] = None
+    num_steps: int = 256
     """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
-    learning_rate: Optional[float] = None
+    learning_rate: float = 1e-4
     """Adam learning rate of students and teacher (paper: maze 1e-4, carracing and walker 3e-4)"""
-    gamma: Optional[float] = None
+    gamma: float = 0.995
     """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
-    gae_lambda: Optional[float] = None
+    gae_lambda: float = 0.95
     """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
-    num_minibatches: Optional[int] = None
+    num_minibatches: int = 1
     """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
-    update_epochs: Optional[int] = None
+    update_epochs: int = 5
     """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
-    student_ent_coef: Optional[float] = None
+    student_ent_coef: float = 0.0
     """entropy bonus of protagonist and antagonist (PAIRED: 0; walker 0.001)"""
-    teacher_ent_coef: Optional[float] = None
+    teacher_ent_coef: float = 0.0
     """entropy bonus of the teacher (PAIRED: 0; walker 0.01, the reference's walker setting)"""
-    teacher_update_epochs: Optional[int] = None
+    teacher_update_epochs: int = 5
     """PPO epochs per update of the teacher (paper: as the students, walker 8)"""
-    teacher_num_minibatches: Optional[int] = None
+    teacher_num_minibatches: int = 1
     """minibatches per epoch of the teacher, of whole level designs for an LSTM teacher (paper: maze 1, carracing and walker 4)"""
-    teacher_conv_channels: Optional[int] = None
+    teacher_conv_channels: int = 128
     """maze: channels of the teacher's conv layer (paper: 128; fewer make a lighter, faster teacher)"""
-    normalize_teacher_returns: Optional[bool] = None
+    normalize_teacher_returns: bool = False
     """divide the teacher's return (the regret) by its running std (paper: carracing and walker)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    value_loss: Literal["clipped", "mse", "huber"] = "clipped"
     """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
-    normalize_returns: Optional[bool] = None
+    normalize_returns: bool = False
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
@@ -105,7 +112,7 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 50
     """updates between validation runs of the protagonist on the paper's validation levels"""
-    eval_episodes: Optional[int] = None
+    eval_episodes: int = 100
     """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 10
     """updates between checkpoints (written atomically)"""
@@ -127,38 +134,27 @@ PAPER_DEFAULTS = {
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 
-
-def fail(message: str) -> None:
-    """Bad input: one clear line, exit status 2, nothing written."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {}
 
 
-def parse_command_line() -> Args:
-    """The command line's options. tyro reports a bad one (a value of the wrong type, an unknown option)
-    in a box of many lines: its first paragraph becomes one `error:` line, as every other bad input."""
-    captured = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(captured):
-            args = tyro.cli(Args)
-    except SystemExit as exit_request:
-        if exit_request.code:  # (0 after --help)
-            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
-            lines = [line.strip(" │─╰╯") for line in box] + [""]
-            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
-        raise
-    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
-    return args
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options` (the command line's defaults)."""
+    return Args(env=env, **{**PAPER_DEFAULTS[env], **options})
 
 
 def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, fill unset options with the paper's values, and check them."""
+    """Load a resumed run's arguments, and check them."""
     if args.resume is not None:
         path = os.path.join(args.resume, "args.json")
         if not (os.path.isfile(path) and os.path.isfile(os.path.join(args.resume, "checkpoint.pt"))):
             fail(f"--resume {args.resume}: not a run directory (needs args.json and checkpoint.pt)")
         with open(path) as f:
             saved = json.load(f)
+        this_script = os.path.basename(__file__)
+        script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
+            fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
@@ -168,9 +164,6 @@ def resolve_args(args: Args) -> Args:
             import wandb  # noqa: F401
         except ImportError:
             fail("--track needs Weights and Biases: pip install wandb")
-    for name, value in PAPER_DEFAULTS[args.env].items():
-        if getattr(args, name) is None:
-            setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
     recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
@@ -184,31 +177,12 @@ def resolve_args(args: Args) -> Args:
         fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
     if min(args.student_ent_coef, args.teacher_ent_coef) < 0:
         fail("entropy coefficients must be >= 0")
-    if args.teacher_conv_channels is not None and args.env not in ("maze", "maze25"):
-        fail("--teacher-conv-channels applies to the maze's teacher only")
-    if args.teacher_conv_channels is not None and args.teacher_conv_channels <= 0:
+    if args.teacher_conv_channels <= 0:
         fail("--teacher-conv-channels must be positive")
     if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
-
-
-def check_track_file(args: Args) -> None:
-    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
-    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
-    if args.f1_tracks is not None and args.env != "carracing":
-        fail("--f1-tracks applies to --env carracing only")
-    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
-    if args.env == "carracing" and path:
-        if path != "none":
-            from envs.carracing import load_f1_tracks
-
-            try:
-                load_f1_tracks(path)
-            except ValueError as error:
-                fail(str(error))
-        os.environ["CLEANUED_F1_TRACKS"] = path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -228,49 +202,20 @@ class Rollout:
         self.values = torch.zeros(num_steps, n, device=device)
 
 
-class ReturnNormalizer:
-    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
-    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
-    running moments are updated with every step's discounted return of every copy. The teacher's
-    returns (its final-step regret) are normalized the same way in CarRacing and the walker."""
-
-    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
-        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
-        self.returns = np.zeros(num_envs)
-        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
-
-    def update(self, values: np.ndarray) -> None:
-        """Parallel-algorithm update of the running mean and variance with a batch of values."""
-        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
-        delta, total = batch_mean - self.mean, self.count + batch_count
-        self.mean += delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
-        self.count = total
-
-    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
-        self.returns = self.returns * self.gamma + reward
-        self.update(self.returns)
-        self.returns[ended] = 0.0
-        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
-
-    def state_dict(self) -> dict:
-        return {"mean": self.mean, "var": self.var, "count": self.count}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
-
-
 def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
-    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value."""
-    advantages = torch.zeros_like(storage.rewards)
-    last = torch.zeros_like(next_value)
-    num_steps = storage.rewards.shape[0]
-    for t in reversed(range(num_steps)):
-        next_nonterminal = 1.0 - (next_done if t == num_steps - 1 else storage.dones[t + 1])
-        following = next_value if t == num_steps - 1 else storage.values[t + 1]
-        delta = storage.rewards[t] + gamma * following * next_nonterminal - storage.values[t]
-        last = delta + gamma * gae_lambda * next_nonterminal * last
+    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value. The recurrence
+    runs in numpy on one copy of the rollout: as 256 steps of tiny tensor ops it would launch (and wait
+    for) a dozen kernels per step on a GPU."""
+    rewards, values, dones = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.dones))
+    next_nonterminal = 1.0 - np.concatenate([dones[1:], next_done.cpu().numpy()[None]])
+    following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
+    delta = rewards + gamma * following * next_nonterminal - values
+    advantages = np.empty_like(rewards)
+    last = np.zeros_like(rewards[0])
+    for t in reversed(range(len(rewards))):
+        last = delta[t] + gamma * gae_lambda * next_nonterminal[t] * last
         advantages[t] = last
+    advantages = torch.from_numpy(advantages).to(storage.rewards.device)
     return advantages, advantages + storage.values
 
 
@@ -287,10 +232,11 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     episode_returns = [[] for _ in range(args.num_envs)]
     running_return = np.zeros(args.num_envs)
     for step in range(args.num_steps):
+        obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
-            storage.obs[k][step] = torch.from_numpy(v)
+            storage.obs[k][step] = v
         storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(to_torch(obs, device), state, done)
+        action, logprob, _, value, state = agent.get_action_and_value(obs, state, done)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
@@ -328,6 +274,14 @@ def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int
         yield from order.chunk(num_minibatches)
 
 
+def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
+    """Rows of x's flattened time-major batch [T * n, ...]: all of them (a slice, a view) or an index
+    tensor's. index_select copies whole rows; indexing with the tensor copies CarRacing's uint8 image
+    stacks element by element, several times slower on CPU."""
+    flat = x.reshape((-1,) + x.shape[2:])
+    return flat[rows] if isinstance(rows, slice) else flat.index_select(0, rows)
+
+
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
@@ -338,15 +292,20 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     return 0.5 * ((value - ret) ** 2).mean()
 
 
+# The statistics of a PPO update, as CleanRL logs them: losses, entropy, approximate KL and clipped share.
+PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, update_epochs: int, num_minibatches: int,
                args: Args, update: int, device) -> dict:
     """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
     num_steps, n = storage.rewards.shape
     state = agent.initial_state(n // num_minibatches, device)  # every rollout starts from a fresh state
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0}
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    finite = torch.ones((), dtype=torch.bool, device=device)
     for _ in range(update_epochs):
         for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
-            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
+            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
@@ -359,15 +318,15 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
-                raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
             optimizer.step()
+            finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
             with torch.no_grad():
-                stats["policy_loss"] += policy_loss.item()
-                stats["value_loss"] += value_loss.item()
-                stats["entropy"] += entropy.mean().item()
-                stats["approx_kl"] += ((ratio - 1) - ratio.log()).mean().item()
-    return {k: v / (update_epochs * num_minibatches) for k, v in stats.items()}
+                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
+    if not finite:  # the run stops before its next checkpoint
+        raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
+    count = update_epochs * num_minibatches
+    return dict(zip(PPO_STATS, (sums / count).tolist()))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -380,10 +339,11 @@ def teacher_rollout(teacher, mdp, storage: Rollout, args: Args, device):
     state = teacher.initial_state(args.num_envs, device)
     done = torch.ones(args.num_envs, device=device)
     for step in range(mdp.num_steps):
+        obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
-            storage.obs[k][step] = torch.from_numpy(v)
+            storage.obs[k][step] = v
         storage.dones[step] = done
-        action, logprob, _, value, state = teacher.get_action_and_value(to_torch(obs, device), state, done)
+        action, logprob, _, value, state = teacher.get_action_and_value(obs, state, done)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
@@ -411,76 +371,28 @@ def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args
     storage.rewards[-1] = torch.as_tensor(reward, dtype=torch.float32, device=device)
     return gae(storage, torch.zeros(n, device=device), torch.ones(n, device=device), args.gamma, args.gae_lambda)
 
-def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
-    def average_ranks(x):
-        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
-
-    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
-    if ranks_a.std() == 0 or ranks_b.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
-
-
-def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
-    """How well the curriculum's score tracks the true regret, where the env knows each level's best
-    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
-    the true regret (optimal return - the student's mean return over its completed episodes; a level
-    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
-    env without a solver."""
-    if optimal is None:
-        return {}
-    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
-    true_regret = optimal - achieved
-    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
-            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
-
-
-
 # ---------------------------------------------------------------------------------------------------
 # Run directory: metrics, checkpoints (atomic), level images, final evaluation.
 # ---------------------------------------------------------------------------------------------------
 def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics among them."""
     return ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
-            "protagonist_solved", "antagonist_solved", "protagonist_entropy", "antagonist_entropy", "teacher_entropy",
-            *env.level_metric_names, "optimal_return", "solvable", "true_regret", "score_true_regret_correlation", "protagonist_value_loss", "antagonist_value_loss",
-            "teacher_value_loss", "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
+            "protagonist_solved", "antagonist_solved", *env.level_metric_names, "optimal_return", "solvable", "true_regret",
+            "score_true_regret_correlation", *(f"{name}_{stat}" for name in ("protagonist", "antagonist", "teacher") for stat in PPO_STATS),
+            "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
             "time_teacher_update", "val_solved_rate", "val_return"]
-
-
-def save_checkpoint(path: str, state: dict) -> None:
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-
-
-def log_scalars(tensorboard, row: dict, step: int) -> None:
-    """One update's metrics in TensorBoard (`tensorboard --logdir runs`): losses, entropies and KL
-    statistics under losses/, everything else under charts/."""
-    for name, value in row.items():
-        if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value):
-            group = "losses" if any(part in name for part in ("loss", "entropy", "kl", "clipfrac")) else "charts"
-            tensorboard.add_scalar(f"{group}/{name}", value, step)
-
-
-def log_image(tensorboard, path: str, step: int) -> None:
-    """A saved PNG of the curriculum's levels in TensorBoard's images."""
-    tensorboard.add_image("curriculum/levels", imread(path)[..., :3], step, dataformats="HWC")
 
 
 def episode_mean(returns_per_level, threshold=None) -> float:
     flat = [r for rs in returns_per_level for r in rs]
-    if not flat:
-        return 0.0
+    if not flat:  # no episode finished: a gap in the curves, not a return of 0
+        return float("nan")
     return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
 
 
 if __name__ == "__main__":
-    args = resolve_args(parse_command_line())
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    torch.backends.cudnn.deterministic = args.torch_deterministic
+    args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
+    device = select_device(args.cuda, args.torch_deterministic, args.env)
     batch_size = args.num_envs * args.num_steps
     num_updates = math.ceil(args.total_timesteps / batch_size)
 
@@ -490,7 +402,7 @@ if __name__ == "__main__":
     torch.manual_seed(args.seed)
     protagonist = env.Student().to(device)
     antagonist = env.Student().to(device)
-    teacher_options = {} if args.teacher_conv_channels is None else {"conv_channels": args.teacher_conv_channels}
+    teacher_options = {"conv_channels": args.teacher_conv_channels} if args.env in ("maze", "maze25") else {}
     teacher = env.Teacher(mdp.num_steps, **teacher_options).to(device)
     agents = {"protagonist": protagonist, "antagonist": antagonist, "teacher": teacher}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in agents.items()}
@@ -529,7 +441,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump(dataclasses.asdict(args), f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
@@ -580,8 +492,7 @@ if __name__ == "__main__":
                "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
                "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
                "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
-               **{f"{name}_entropy": stats[name]["entropy"] for name in agents},
-               **{f"{name}_value_loss": stats[name]["value_loss"] for name in agents},
+               **{f"{name}_{stat}": stats[name][stat] for name in agents for stat in PPO_STATS},
                **{k: float(np.mean(v)) for k, v in level_stats.items()},
                **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret),
                "time_teacher_rollout": time_teacher_rollout, "time_student_rollouts": times["rollouts"],
@@ -608,7 +519,7 @@ if __name__ == "__main__":
                   f"teacher update {time_teacher_update / total:.0%} | ETA {eta / 60:.1f} min")
         if update % args.levels_interval == 0 or update == num_updates:
             save_image_grid(env.render(levels), os.path.join(run_dir, f"levels_{update}.png"), titles=[f"regret {r:.3f}" for r in level_regret])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step)
+            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
         if update % args.checkpoint_interval == 0 or update == num_updates:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 **{name: a.state_dict() for name, a in agents.items()},
@@ -630,6 +541,8 @@ if __name__ == "__main__":
         json.dump(results, f, indent=2)
     for name, r in results.items():
         print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
+    if args.capture_video:
+        capture_videos(protagonist, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
     save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
         ("returns", ["protagonist_return", "antagonist_return", "regret"]),
         ("validation solved rate", ["val_solved_rate"]),

@@ -10,43 +10,48 @@ Appendix C ("Combining it all") is one command:
 
     python paired_evo.py --env maze                                                  # PAIRED+Evo
     python paired_evo.py --env maze --flexible                                       # FlexPAIRED+Evo
-    python paired_evo.py --env maze --kl-coef 0.01 --kl-interval 10                  # PAIRED+Evo+UniBC
-    python paired_evo.py --env maze --kl-coef 0.01 --kl-interval 10 --student-ent-coef 0.005  # +UniBC+HiEnt
-    python paired_evo.py --env maze --kl-coef 0.01 --kl-interval 10 --bidirectional  # PAIRED+Evo+BiBC
+    python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10                  # PAIRED+Evo+UniBC
+    python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --student-ent-coef 0.005  # +UniBC+HiEnt
+    python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --bidirectional  # PAIRED+Evo+BiBC
 """
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
-import io
 import json
 import os
-import re
-import sys
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
 
+# Before torch loads OpenMP: idle threads sleep instead of spinning, which on a machine busy with other work
+# made two threads wait on each other at every op (CarRacing several times slower; docs/performance.md).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
-from matplotlib.image import imread
 from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
+from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
+from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
+                       true_regret_stats)
+from envs.video import capture_videos
 
 
+# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
+# of the chosen env.
 @dataclass
 class Args:
-    env: str = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; sets every paper default below"""
+    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
+    defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "paired_evo"
-    """name of this experiment, part of the run directory's name"""
+    """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
@@ -57,34 +62,36 @@ class Args:
     """log to Weights and Biases (needs `pip install wandb`)"""
     wandb_project_name: str = "cleanued"
     """the wandb project, with --track"""
+    capture_video: bool = False
+    """after the final evaluation, write a GIF of the agent on each held-out level to the run's videos/"""
     resume: Optional[str] = None
     """a run directory to continue from its last checkpoint (its saved arguments are used)"""
     f1_tracks: Optional[str] = None
     """CarRacing: the Formula-1 track file (.npz) of the held-out evaluation (default: $CLEANUED_F1_TRACKS, else the
     paper's 20 circuits shipped with cleanued; none: vanilla and 3 built-in tracks, for quick runs)"""
 
-    # PPO for both students (None = the paper's value for --env)
-    total_timesteps: Optional[int] = None
+    # PPO for both students (defaults: the paper's values for --env)
+    total_timesteps: int = 250_000_000
     """protagonist env steps in all, training, scoring and edit evaluation; the antagonist plays as many"""
-    num_envs: Optional[int] = None
+    num_envs: int = 32
     """levels per update, one per env copy (paper: maze 32, carracing and walker 16)"""
-    num_steps: Optional[int] = None
+    num_steps: int = 256
     """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
-    learning_rate: Optional[float] = None
+    learning_rate: float = 1e-4
     """Adam learning rate of the students (paper: maze 1e-4, carracing and walker 3e-4)"""
-    gamma: Optional[float] = None
+    gamma: float = 0.995
     """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
-    gae_lambda: Optional[float] = None
+    gae_lambda: float = 0.95
     """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
-    num_minibatches: Optional[int] = None
+    num_minibatches: int = 1
     """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
-    update_epochs: Optional[int] = None
+    update_epochs: int = 5
     """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
-    student_ent_coef: Optional[float] = None
+    student_ent_coef: float = 0.0
     """entropy bonus of protagonist and antagonist (0; HiEnt: 0.005)"""
-    kl_coef: Optional[float] = None
+    bc_coef: float = 0.0
     """behavioural-cloning KL coefficient, eq. 1 (0: off; Appendix C: 0.01)"""
-    kl_interval: Optional[int] = None
+    bc_interval: int = 10
     """the KL term is added on every K-th gradient update only (Appendix C: 10)"""
     bidirectional: bool = False
     """BiBC: the antagonist also clones the protagonist (default: UniBC, protagonist only)"""
@@ -92,9 +99,9 @@ class Args:
     """FlexPAIRED+Evo: the flexible regret, no fixed roles (replay probability 0.9)"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
-    value_loss: Optional[Literal["clipped", "mse", "huber"]] = None
+    value_loss: Literal["clipped", "mse", "huber"] = "clipped"
     """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
-    normalize_returns: Optional[bool] = None
+    normalize_returns: bool = False
     """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
     vf_coef: float = 0.5
     """value loss coefficient"""
@@ -104,21 +111,21 @@ class Args:
     """Adam epsilon"""
 
     # Robust PLR's level replay
-    replay_prob: Optional[float] = None
+    replay_prob: float = 0.5
     """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible on the maze)"""
-    level_buffer_size: Optional[int] = None
+    level_buffer_size: int = 4000
     """levels kept in the buffer (paper: maze 4000, walker 1000; carracing 10000)"""
-    temperature: Optional[float] = None
+    temperature: float = 0.3
     """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
-    staleness_coef: Optional[float] = None
+    staleness_coef: float = 0.5
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
 
     # Editing
-    generator: Optional[str] = None
+    generator: Literal["random", "empty", "easy", "sketch"] = "random"
     """new levels: random (the DR generator, maze default), empty rooms (maze), easy (walker default) or sketch
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
     are continuous and cannot be edited)"""
-    num_edits: Optional[int] = None
+    num_edits: int = 5
     """random edits per child level (paper: maze 5, walker 3)"""
     edit_levels: Literal["easy", "batch"] = "easy"
     """parents: the easy (lowest-score) half of the replayed batch, two children each; or every replayed level once"""
@@ -130,7 +137,7 @@ class Args:
     """updates between progress lines"""
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
-    eval_episodes: Optional[int] = None
+    eval_episodes: int = 100
     """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
     checkpoint_interval: int = 50
     """updates between checkpoints (written atomically)"""
@@ -144,15 +151,15 @@ class Args:
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
                  gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, value_loss="clipped",
-                 normalize_returns=False, kl_coef=0.0, kl_interval=10, level_buffer_size=4000, temperature=0.3,
+                 normalize_returns=False, bc_coef=0.0, bc_interval=10, level_buffer_size=4000, temperature=0.3,
                  staleness_coef=0.5, num_edits=5, generator="random", eval_episodes=100),
     "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
-                      normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=10000, temperature=0.3,
+                      normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=10000, temperature=0.3,
                       staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
                    gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="huber",
-                   normalize_returns=True, kl_coef=0.0, kl_interval=10, level_buffer_size=1000, temperature=0.1,
+                   normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
@@ -160,38 +167,34 @@ REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # P
 FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
 GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("sketch", "random"), "walker": ("random", "easy")}
 
-
-def fail(message: str) -> None:
-    """Bad input: one clear line, exit status 2, nothing written."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float}
 
 
-def parse_command_line() -> Args:
-    """The command line's options. tyro reports a bad one (a value of the wrong type, an unknown option)
-    in a box of many lines: its first paragraph becomes one `error:` line, as every other bad input."""
-    captured = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(captured):
-            args = tyro.cli(Args)
-    except SystemExit as exit_request:
-        if exit_request.code:  # (0 after --help)
-            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
-            lines = [line.strip(" │─╰╯") for line in box] + [""]
-            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
-        raise
-    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options`. --flexible takes its own replay rate; a run is named
+    for its variant (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient...)."""
+    args = Args(env=env, **{**PAPER_DEFAULTS[env], **options})
+    if "replay_prob" not in options:
+        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB)[env]
+    if "exp_name" not in options:
+        cloning = ("_bibc" if args.bidirectional else "_unibc") if args.bc_coef > 0 else ""
+        args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
     return args
 
 
 def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, fill unset options with the paper's values, and check them."""
+    """Load a resumed run's arguments, and check them."""
     if args.resume is not None:
         path = os.path.join(args.resume, "args.json")
         if not (os.path.isfile(path) and os.path.isfile(os.path.join(args.resume, "checkpoint.pt"))):
             fail(f"--resume {args.resume}: not a run directory (needs args.json and checkpoint.pt)")
         with open(path) as f:
             saved = json.load(f)
+        this_script = os.path.basename(__file__)
+        script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
+            fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
     if args.env not in PAPER_DEFAULTS:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
@@ -201,9 +204,6 @@ def resolve_args(args: Args) -> Args:
             import wandb  # noqa: F401
         except ImportError:
             fail("--track needs Weights and Biases: pip install wandb")
-    for name, value in PAPER_DEFAULTS[args.env].items():
-        if getattr(args, name) is None:
-            setattr(args, name, value)
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
     recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
@@ -211,8 +211,6 @@ def resolve_args(args: Args) -> Args:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
         fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
-    if args.replay_prob is None:
-        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB)[args.env]
     if args.generator not in GENERATORS[args.env]:
         fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
     if args.student_ent_coef < 0:
@@ -223,29 +221,12 @@ def resolve_args(args: Args) -> Args:
         fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
     if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
         fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
-    if args.kl_coef < 0 or args.kl_interval < 1:
-        fail("--kl-coef must be >= 0 and --kl-interval at least 1")
+    if args.bc_coef < 0 or args.bc_interval < 1:
+        fail("--bc-coef must be >= 0 and --bc-interval at least 1")
     if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
         fail("step counts, epochs, episodes and intervals must be positive")
     return args
-
-
-def check_track_file(args: Args) -> None:
-    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
-    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
-    if args.f1_tracks is not None and args.env != "carracing":
-        fail("--f1-tracks applies to --env carracing only")
-    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
-    if args.env == "carracing" and path:
-        if path != "none":
-            from envs.carracing import load_f1_tracks
-
-            try:
-                load_f1_tracks(path)
-            except ValueError as error:
-                fail(str(error))
-        os.environ["CLEANUED_F1_TRACKS"] = path
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -268,33 +249,6 @@ def flexible_regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     p_max = np.array([np.max(r) if r else 0.0 for r in protagonist_returns])
     a_max = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
     return np.maximum(np.where(a_max > p_max, a_max - p_mean, p_max - a_mean), 0.0)
-
-def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
-    def average_ranks(x):
-        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
-
-    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
-    if ranks_a.std() == 0 or ranks_b.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
-
-
-def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
-    """How well the curriculum's score tracks the true regret, where the env knows each level's best
-    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
-    the true regret (optimal return - the student's mean return over its completed episodes; a level
-    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
-    env without a solver."""
-    if optimal is None:
-        return {}
-    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
-    true_regret = optimal - achieved
-    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
-            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
-
-
 
 def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
     """P_S: proportional to (1 / rank)^(1 / T), rank 1 the highest score."""
@@ -402,49 +356,20 @@ class Rollout:
         self.values = torch.zeros(num_steps, n, device=device)
 
 
-class ReturnNormalizer:
-    """Return normalization (CarRacing, walker): rewards are divided by a running standard deviation of the
-    discounted return and clipped to [-10, 10], as gym's VecNormalize does for the reference. The
-    running moments are updated with every step's discounted return of every copy. The teacher's
-    returns (its final-step regret) are normalized the same way in CarRacing and the walker."""
-
-    def __init__(self, num_envs: int, gamma: float, clip: float = 10.0, epsilon: float = 1e-8):
-        self.gamma, self.clip, self.epsilon = gamma, clip, epsilon
-        self.returns = np.zeros(num_envs)
-        self.mean, self.var, self.count = 0.0, 1.0, 1e-4
-
-    def update(self, values: np.ndarray) -> None:
-        """Parallel-algorithm update of the running mean and variance with a batch of values."""
-        batch_mean, batch_var, batch_count = values.mean(), values.var(), len(values)
-        delta, total = batch_mean - self.mean, self.count + batch_count
-        self.mean += delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
-        self.count = total
-
-    def __call__(self, reward: np.ndarray, ended: np.ndarray) -> np.ndarray:
-        self.returns = self.returns * self.gamma + reward
-        self.update(self.returns)
-        self.returns[ended] = 0.0
-        return np.clip(reward / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
-
-    def state_dict(self) -> dict:
-        return {"mean": self.mean, "var": self.var, "count": self.count}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.mean, self.var, self.count = state["mean"], state["var"], state["count"]
-
-
 def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
-    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value."""
-    advantages = torch.zeros_like(storage.rewards)
-    last = torch.zeros_like(next_value)
-    num_steps = storage.rewards.shape[0]
-    for t in reversed(range(num_steps)):
-        next_nonterminal = 1.0 - (next_done if t == num_steps - 1 else storage.dones[t + 1])
-        following = next_value if t == num_steps - 1 else storage.values[t + 1]
-        delta = storage.rewards[t] + gamma * following * next_nonterminal - storage.values[t]
-        last = delta + gamma * gae_lambda * next_nonterminal * last
+    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value. The recurrence
+    runs in numpy on one copy of the rollout: as 256 steps of tiny tensor ops it would launch (and wait
+    for) a dozen kernels per step on a GPU."""
+    rewards, values, dones = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.dones))
+    next_nonterminal = 1.0 - np.concatenate([dones[1:], next_done.cpu().numpy()[None]])
+    following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
+    delta = rewards + gamma * following * next_nonterminal - values
+    advantages = np.empty_like(rewards)
+    last = np.zeros_like(rewards[0])
+    for t in reversed(range(len(rewards))):
+        last = delta[t] + gamma * gae_lambda * next_nonterminal[t] * last
         advantages[t] = last
+    advantages = torch.from_numpy(advantages).to(storage.rewards.device)
     return advantages, advantages + storage.values
 
 
@@ -461,10 +386,11 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     episode_returns = [[] for _ in range(args.num_envs)]
     running_return = np.zeros(args.num_envs)
     for step in range(args.num_steps):
+        obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
-            storage.obs[k][step] = torch.from_numpy(v)
+            storage.obs[k][step] = v
         storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(to_torch(obs, device), state, done)
+        action, logprob, _, value, state = agent.get_action_and_value(obs, state, done)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
@@ -510,6 +436,14 @@ def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int
         yield from order.chunk(num_minibatches)
 
 
+def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
+    """Rows of x's flattened time-major batch [T * n, ...]: all of them (a slice, a view) or an index
+    tensor's. index_select copies whole rows; indexing with the tensor copies CarRacing's uint8 image
+    stacks element by element, several times slower on CPU."""
+    flat = x.reshape((-1,) + x.shape[2:])
+    return flat[rows] if isinstance(rows, slice) else flat.index_select(0, rows)
+
+
 def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
     if args.value_loss == "clipped":
@@ -520,16 +454,22 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
     return 0.5 * ((value - ret) ** 2).mean()
 
 
+# The statistics of a PPO update, as CleanRL logs them: losses, entropy, approximate KL and clipped share.
+PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, args: Args, update: int, device,
-               clone_target=None, kl_coef: float = 0.0) -> dict:
+               clone_target=None, bc_coef: float = 0.0) -> dict:
     """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
-    every minibatch loss adds kl_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
+    every minibatch loss adds bc_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
     num_steps, n = storage.rewards.shape
     state = agent.initial_state(n // args.num_minibatches, device)  # every rollout starts from a fresh state
-    stats = {"policy_loss": 0.0, "value_loss": 0.0, "entropy": 0.0, "approx_kl": 0.0, "kl": 0.0}
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    kl_sum = torch.zeros((), device=device)
+    finite = torch.ones((), dtype=torch.bool, device=device)
     for _ in range(args.update_epochs):
         for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
-            flat = lambda x: x.reshape((-1,) + x.shape[2:])[rows]  # noqa: E731 (time-major [T * n] rows)
+            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
             dist, value = agent.dist_and_value(obs, state, flat(storage.dones))
             logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
@@ -542,20 +482,20 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
             loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
             if clone_target is not None:
                 kl = cloning_kl(clone_target, dist, obs, state, flat(storage.dones))
-                loss = loss + kl_coef * kl
-                stats["kl"] += kl.item()
+                loss = loss + bc_coef * kl
+                kl_sum += kl.detach()
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            if not (torch.isfinite(loss) and torch.isfinite(grad_norm)):
-                raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
             optimizer.step()
+            finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
             with torch.no_grad():
-                stats["policy_loss"] += policy_loss.item()
-                stats["value_loss"] += value_loss.item()
-                stats["entropy"] += entropy.mean().item()
-                stats["approx_kl"] += ((ratio - 1) - ratio.log()).mean().item()
-    return {k: v / (args.update_epochs * args.num_minibatches) for k, v in stats.items()}
+                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
+    if not finite:  # the run stops before its next checkpoint
+        raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
+    count = args.update_epochs * args.num_minibatches
+    return {**dict(zip(PPO_STATS, (sums / count).tolist())), "kl": (kl_sum / count).item()}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -568,43 +508,22 @@ def metric_names(env) -> list[str]:
             "protagonist_solved", "antagonist_solved", "regret", "buffer_size", "buffer_mean_score", *env.level_metric_names,
             "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
             "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
-            "protagonist_entropy", "antagonist_entropy", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
-
-
-def save_checkpoint(path: str, state: dict) -> None:
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
-
-
-def log_scalars(tensorboard, row: dict, step: int) -> None:
-    """One update's metrics in TensorBoard (`tensorboard --logdir runs`): losses, entropies and KL
-    statistics under losses/, everything else under charts/."""
-    for name, value in row.items():
-        if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value):
-            group = "losses" if any(part in name for part in ("loss", "entropy", "kl", "clipfrac")) else "charts"
-            tensorboard.add_scalar(f"{group}/{name}", value, step)
-
-
-def log_image(tensorboard, path: str, step: int) -> None:
-    """A saved PNG of the curriculum's levels in TensorBoard's images."""
-    tensorboard.add_image("curriculum/levels", imread(path)[..., :3], step, dataformats="HWC")
+            *(f"{name}_{stat}" for name in ("protagonist", "antagonist") for stat in PPO_STATS), "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
 
 def episode_mean(returns_per_level, threshold=None) -> float:
     flat = [r for rs in returns_per_level for r in rs]
-    if not flat:
-        return 0.0
+    if not flat:  # no episode finished: a gap in the curves, not a return of 0
+        return float("nan")
     return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
 
 
 if __name__ == "__main__":
-    args = resolve_args(parse_command_line())
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    torch.backends.cudnn.deterministic = args.torch_deterministic
+    args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
+    device = select_device(args.cuda, args.torch_deterministic, args.env)
     batch_size = args.num_envs * args.num_steps
     score_levels = flexible_regret if args.flexible else regret
-    mode = ("FlexPAIRED+Evo" if args.flexible else "PAIRED+Evo") + (("+BiBC" if args.bidirectional else "+UniBC") if args.kl_coef > 0 else "")
+    mode = ("FlexPAIRED+Evo" if args.flexible else "PAIRED+Evo") + (("+BiBC" if args.bidirectional else "+UniBC") if args.bc_coef > 0 else "")
 
     env = envs.make(args.env, args.num_envs, args.seed)
     level_rng = np.random.default_rng(args.seed + 1)  # level generation, edits and replay sampling
@@ -650,7 +569,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump(dataclasses.asdict(args), f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:
@@ -676,7 +595,7 @@ if __name__ == "__main__":
             levels = buffer.levels[replay_index]
             played = env.draw_starts(levels)  # both students start each level alike (the maze's direction)
             gradient_updates += 1
-            cloning_update = args.kl_coef > 0 and gradient_updates % args.kl_interval == 0
+            cloning_update = args.bc_coef > 0 and gradient_updates % args.bc_interval == 0
             clone_targets = {"protagonist": antagonist if cloning_update else None,
                              "antagonist": protagonist if cloning_update and args.bidirectional else None}
             for name in ("protagonist", "antagonist"):
@@ -684,7 +603,7 @@ if __name__ == "__main__":
                 advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
                 students[name].train()
                 stats[name] = ppo_update(students[name], optimizers[name], storage, advantages, returns, args.student_ent_coef, args,
-                                         update, device, clone_target=clone_targets[name], kl_coef=args.kl_coef)
+                                         update, device, clone_target=clone_targets[name], bc_coef=args.bc_coef)
                 if clone_targets[name] is not None:
                     stats[f"kl_{name}"] = stats[name]["kl"]
             scores = score_levels(returns_of["protagonist"], returns_of["antagonist"])
@@ -726,7 +645,7 @@ if __name__ == "__main__":
                "regret": float(scores.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()}, **edit_stats,
                **true_regret_stats(env.optimal_returns(played), returns_of["protagonist"], scores),
-               **{f"{name}_entropy": stats[name]["entropy"] for name in students if name in stats},
+               **{f"{name}_{stat}": stats[name][stat] for name in students if name in stats for stat in PPO_STATS},
                **{k: v for k, v in stats.items() if k.startswith("kl_")}}
         last_update = global_step >= args.total_timesteps
         if update % args.eval_interval == 0 or last_update:
@@ -750,7 +669,7 @@ if __name__ == "__main__":
             top = np.argsort(-buffer.scores)[:32]
             save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
                             titles=[f"regret {s:.3f}" for s in buffer.scores[top]])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step)
+            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
         if update % args.checkpoint_interval == 0 or last_update:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
                 **{name: a.state_dict() for name, a in students.items()},
@@ -772,6 +691,8 @@ if __name__ == "__main__":
         json.dump(results, f, indent=2)
     for name, r in results.items():
         print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
+    if args.capture_video:
+        capture_videos(protagonist, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
     save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
         ("returns", ["protagonist_return", "antagonist_return", "regret"]),
         ("validation solved rate", ["val_solved_rate"]), ("entropy", ["protagonist_entropy", "antagonist_entropy"]),

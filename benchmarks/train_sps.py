@@ -21,6 +21,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import envs  # noqa: E402
 import plr  # noqa: E402
 
+envs.keep_freed_memory()  # as plr.py's main does first
+
 parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 parser.add_argument("--repeats", type=int, default=5, help="timed rollouts and updates each")
 parser.add_argument("--env", default="maze")

@@ -1,25 +1,19 @@
 """Steps per second of the walker env (envs/walker.py, 16 copies) against one gymnasium BipedalWalker-v3.
 
-    python benchmarks/walker_env.py [--seconds 10] [--rounds 10] [--copies 16] [--workers 1] [--levels v3|random]
+    python benchmarks/walker_env.py [--seconds 10] [--rounds 10] [--copies 16] [--levels v3|random]
 
-They run in the same run, in alternating rounds (so all see the same load from whatever else runs
-on the machine), with uniform random actions in [-1, 1]^4 made before timing. The walker env runs
-twice: all copies in this process, and with --workers worker processes (default: the env's default,
-$CLEANUED_WALKER_WORKERS or none), which step shares of the copies beside this process; a step of N
-copies counts as N env steps, ended episodes restart inside the env. gymnasium's
-walker (BipedalWalker-v3, hardcore off) is stepped in a plain loop, reset after every ended episode and
-at 1600 steps (its TimeLimit). The walker env plays the held-out "BipedalWalker-v3" course (gymnasium's
-own terrain generator; --levels random: the DR levels of training instead) with the same limit. Then,
-as a control when there are workers, it measures what the machine gives as many free-running gymnasium
-loops at once as processes step walkers (workers + 1) over one (on a busy machine, far less than the
-number of processes: the ceiling of any split). The last line ends with the ratio walker env (default
-or --workers) / gymnasium as a bare number.
+They run in the same run, in alternating rounds (so both see the same load from whatever else runs
+on the machine), with uniform random actions in [-1, 1]^4 made before timing. A step of N walker env
+copies counts as N env steps; ended episodes restart inside the env. gymnasium's walker
+(BipedalWalker-v3, hardcore off) is stepped in a plain loop, reset after every ended episode and at
+1600 steps (its TimeLimit). The walker env plays the held-out "BipedalWalker-v3" course (gymnasium's
+own terrain generator; --levels random: the DR levels of training instead) with the same limit. The
+last line ends with the ratio walker env / gymnasium as a bare number.
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing
 import os
 import platform
 import sys
@@ -41,9 +35,9 @@ MAX_STEPS = 1600  # BipedalWalker-v3's TimeLimit
 class WalkerEnvRunner:
     """A WalkerEnv with 16 (or --copies) copies on its levels, stepped with random actions in rounds."""
 
-    def __init__(self, copies: int, workers: int | None, levels: str, seed: int):
+    def __init__(self, copies: int, levels: str, seed: int):
         rng = np.random.default_rng(seed)
-        self.env = WalkerEnv(copies, seed, num_workers=workers)
+        self.env = WalkerEnv(copies, seed)
         batch = self.env.random_levels(copies, rng) if levels == "random" else self.env.test_levels()["BipedalWalker-v3"].generate(copies, rng)
         self.env.reset(batch, max_steps=MAX_STEPS)
         self.actions = rng.uniform(-1, 1, (ACTION_BLOCK, copies, 4)).astype(np.float32)
@@ -91,34 +85,10 @@ def run_for(runner, seconds: float) -> tuple[int, float]:
             return steps, elapsed
 
 
-def _free_running_gymnasium(seconds: float, seed: int, results) -> None:
-    """Process target: step a GymnasiumRunner for `seconds`, put its steps per second on `results`."""
-    steps, elapsed = run_for(GymnasiumRunner(seed), seconds)
-    results.put(steps / elapsed)
-
-
-def machine_capacity(processes: int, seconds: float, seed: int) -> float:
-    """Total steps/s of `processes` independent gymnasium loops run at once, over that of one: the
-    ceiling of any split over that many processes under the machine's current load (about `processes`
-    on an idle machine, near 1 when other jobs hold the cores)."""
-    context = multiprocessing.get_context("fork")
-    totals = []
-    for count in (1, processes):
-        results = context.Queue()
-        workers = [context.Process(target=_free_running_gymnasium, args=(seconds, seed, results)) for _ in range(count)]
-        for worker in workers:
-            worker.start()
-        totals.append(sum(results.get() for _ in workers))
-        for worker in workers:
-            worker.join()
-    return totals[1] / totals[0]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="timed seconds per env, over all rounds")
     parser.add_argument("--copies", type=int, default=16, help="walker env copies")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: the env's default)")
     parser.add_argument("--levels", choices=("v3", "random"), default="v3", help="the walker env's levels")
     parser.add_argument("--rounds", type=int, default=10, help="alternating rounds the seconds are split into")
     parser.add_argument("--seed", type=int, default=0)
@@ -129,8 +99,7 @@ def main() -> None:
     print(f"{'env':<36}{'copies':>8}{'steps timed':>14}{'steps/s':>12}")
     runners = {
         "gymnasium BipedalWalker-v3 (loop)": GymnasiumRunner(args.seed),
-        f"WalkerEnv {args.levels}, in-process": WalkerEnvRunner(args.copies, 0, args.levels, args.seed),
-        f"WalkerEnv {args.levels}, workers": WalkerEnvRunner(args.copies, args.workers, args.levels, args.seed),
+        f"WalkerEnv {args.levels}": WalkerEnvRunner(args.copies, args.levels, args.seed),
     }
     totals = {name: [0, 0.0] for name in runners}
     # Alternate short rounds, so every runner sees the same load from whatever else runs on the machine.
@@ -141,18 +110,10 @@ def main() -> None:
             totals[name][1] += elapsed
     sps = {name: steps / elapsed for name, (steps, elapsed) in totals.items()}
     for name, runner in runners.items():
-        copies, label = 1, name
-        if isinstance(runner, WalkerEnvRunner):
-            runner.env.close()
-            copies, label = args.copies, name.replace("workers", f"{runner.env.num_workers} workers")
-        print(f"{label:<36}{copies:>8}{totals[name][0]:>14,}{sps[name]:>12,.0f}")
-    workers = runners[f"WalkerEnv {args.levels}, workers"].env.num_workers
-    if workers > 0:
-        capacity = machine_capacity(workers + 1, min(args.seconds / 2, 4.0), args.seed)
-        print(f"machine capacity now: {workers + 1} free-running gymnasium loops give {capacity:.2f}x one "
-              f"(the ceiling of the speed-up of the workers row over the in-process one under the current load)")
-    ratio = sps[f"WalkerEnv {args.levels}, workers"] / sps["gymnasium BipedalWalker-v3 (loop)"]
-    print(f"ratio WalkerEnv({args.copies}, {workers} workers)/gymnasium: {ratio:.2f}")
+        copies = args.copies if isinstance(runner, WalkerEnvRunner) else 1
+        print(f"{name:<36}{copies:>8}{totals[name][0]:>14,}{sps[name]:>12,.0f}")
+    ratio = sps[f"WalkerEnv {args.levels}"] / sps["gymnasium BipedalWalker-v3 (loop)"]
+    print(f"ratio WalkerEnv({args.copies})/gymnasium: {ratio:.2f}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ first (channels 3k..3k+2 are frame k, frame 3 the newest); an episode's first ob
 first frame four times (as the reference's frame stack). Action: Box(0, 1, (3,)), the Beta sample,
 mapped to steer = 2 a0 - 1, gas = a1, brake = a2, held for 8 physics frames (action repeat 8).
 
-    python -m envs.carracing convert formula1.py out.npz   # the reference's track file to our format
+    python -m envs.carracing_tracks convert formula1.py out.npz   # the reference's track file to our format
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import sys
 
 import Box2D
 import gymnasium as gym
@@ -40,7 +39,6 @@ from envs.carracing_tracks import (
     TRACK_WIDTH,
     VANILLA_FRAME_LIMIT,
     Track,
-    convert_formula1,
     load_f1_tracks,
     random_control_points,
     track_from_cells,
@@ -50,7 +48,7 @@ from envs.carracing_tracks import (
     track_metrics,
     vanilla_track,
 )
-from envs.levels import HeldOutLevel, LevelBatch
+from envs.levels import HeldOutLevel, HeldOutLevels, LevelBatch
 from envs.nets import FeedForwardActorCritic, layer_init
 
 ACTION_REPEAT = 8
@@ -143,11 +141,28 @@ def _f1_tracks_from_environment() -> dict | None:
     return None
 
 
-class HeldOutTracks(dict):
-    """name -> HeldOutLevel; an unknown name raises ValueError listing the known ones."""
+def held_out_levels(f1_tracks: dict | None) -> HeldOutLevels:
+    """Held out: vanilla (a fresh gymnasium track per episode) plus the 20 F1 tracks of `f1_tracks`
+    (name -> (centreline, frame limit), as `load_f1_tracks` gives them; max_steps = the track's frame
+    limit / 8, rounded up), or, without F1 tracks, the built-in Hairpins, Chicanes and LongStraights."""
 
-    def __missing__(self, name):
-        raise ValueError(f"unknown CarRacing track {name!r}: expected one of {', '.join(self)}")
+    def vanilla(n, rng):
+        """n gymnasium tracks, their seeds drawn from rng."""
+        return fixed_levels(VANILLA, rng.integers(0, 2**31 - 1, n))
+
+    def fixed(track):
+        """The generator of one fixed track."""
+        return lambda n, rng: fixed_levels(track, np.zeros(n, np.int64))
+
+    held_out = HeldOutLevels(vanilla=HeldOutLevel(vanilla, VANILLA_FRAME_LIMIT // ACTION_REPEAT))
+    if f1_tracks:
+        for k, name in enumerate(sorted(f1_tracks)):  # track kinds FIRST_F1 + k, as CarRacingEnv.f1_names
+            if name not in EXCLUDED_F1:
+                held_out[name] = HeldOutLevel(fixed(FIRST_F1 + k), math.ceil(f1_tracks[name][1] / ACTION_REPEAT))
+    else:
+        for k, name in enumerate(BUILTIN_NAMES):
+            held_out[name] = HeldOutLevel(fixed(1 + k), math.ceil(BUILTIN_FRAME_LIMITS[name] / ACTION_REPEAT))
+    return held_out
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -408,28 +423,10 @@ class CarRacingEnv:
             child.cells[index[move], which[move]] = target[index[move], choice[move]]
         return child
 
-    def test_levels(self) -> HeldOutTracks:
-        """Held out: vanilla (a fresh gymnasium track per episode) plus the 20 F1 tracks (shipped with
-        cleanued, or the file named by CLEANUED_F1_TRACKS; max_steps = the track's frame limit / 8,
-        rounded up), or, if the track file is missing, the built-in Hairpins, Chicanes and LongStraights."""
-
-        def vanilla(n, rng):
-            """n gymnasium tracks, their seeds drawn from rng."""
-            return fixed_levels(VANILLA, rng.integers(0, 2**31 - 1, n))
-
-        def fixed(track):
-            """The generator of one fixed track."""
-            return lambda n, rng: fixed_levels(track, np.zeros(n, np.int64))
-
-        held_out = HeldOutTracks(vanilla=HeldOutLevel(vanilla, VANILLA_FRAME_LIMIT // ACTION_REPEAT))
-        if self.f1_tracks:
-            for k, name in enumerate(self.f1_names):
-                if name not in EXCLUDED_F1:
-                    held_out[name] = HeldOutLevel(fixed(FIRST_F1 + k), math.ceil(self.f1_tracks[name][1] / ACTION_REPEAT))
-        else:
-            for k, name in enumerate(BUILTIN_NAMES):
-                held_out[name] = HeldOutLevel(fixed(1 + k), math.ceil(BUILTIN_FRAME_LIMITS[name] / ACTION_REPEAT))
-        return held_out
+    def test_levels(self) -> HeldOutLevels:
+        """The held-out tracks (`held_out_levels`) with this env's F1 tracks: the 20 shipped with
+        cleanued, or the file named by CLEANUED_F1_TRACKS, or none ("none", or the file missing)."""
+        return held_out_levels(self.f1_tracks)
 
     def level_metrics(self, levels: CarRacingLevels) -> dict[str, np.ndarray]:
         """Track length (world units), total curvature (sum of absolute turning angles, radians) and
@@ -441,11 +438,11 @@ class CarRacingEnv:
         """Top-down images [B, 128, 128, 3] of the whole playfield of each level (start in red)."""
         return np.stack([level_image(self.track_of(levels, i)) for i in range(len(levels))])
 
-    def render_trajectory(self, levels: CarRacingLevels, i: int, xy: np.ndarray) -> np.ndarray:
-        """Level i's top-down image with a driven path xy [T, 2] (world units, e.g. car_positions()
-        collected over an episode) drawn in blue."""
-        track = self.track_of(levels, i)
-        return draw_trajectory(level_image(track), xy, track.playfield)
+    def render_trajectory(self, level: CarRacingLevels, positions: np.ndarray) -> np.ndarray:
+        """One level's top-down image [128, 128, 3] (level: a batch of one) with a driven path drawn
+        in blue: positions [T, 2] in world units, e.g. car_positions() collected over an episode."""
+        track = self.track_of(level, 0)
+        return draw_trajectory(level_image(track), positions, track.playfield)
 
     def car_positions(self) -> np.ndarray:
         """The hull position (x, y) of every copy [N, 2]."""
@@ -640,8 +637,7 @@ class CarRacingStudent(FeedForwardActorCritic):
 
     def dist_and_value(self, obs: dict, state=None, done=None):
         """-> BetaPolicy over the 3 action dims, value [B]."""
-        pixels = obs["image"].float().mul_(1.0 / 128.0).sub_(1.0)  # in place: one 96x96x12 float copy, not three
-        features = self.conv(pixels)
+        features = self.conv_features(obs["image"])
         hidden = self.actor(features)
         alpha = 1.0 + nn.functional.softplus(self.alpha(hidden))
         beta = 1.0 + nn.functional.softplus(self.beta(hidden))
@@ -650,6 +646,22 @@ class CarRacingStudent(FeedForwardActorCritic):
     def sample(self, dist):
         """A Beta sample kept strictly inside (0, 1), so its log-probability stays finite."""
         return dist.sample().clamp(1e-6, 1 - 1e-6)
+
+    def conv_features(self, image: torch.Tensor) -> torch.Tensor:
+        """The conv stack's features [B, 256] of uint8 stacks [B, 12, 96, 96]: by definition
+        self.conv(image.float() / 128 - 1), as computed for a subclass or with CLEANUED_PLAIN_NETS=1.
+
+        This class computes the same faster on CPU (tests check it against the definition, gradients
+        included). The pixels enter centred, x - 128 (exact in float32), and the 1/128 moves
+        into the first conv's weight: a power of two, so every product is the one the definition
+        forms. The float pixels are laid out channels-last, which oneDNN's convs run faster than
+        channels-first (its weight gradient above all), and the layers after it keep that layout."""
+        if type(self) is not CarRacingStudent or os.environ.get("CLEANUED_PLAIN_NETS") == "1":
+            return self.conv(image.float().mul_(1.0 / 128.0).sub_(1.0))  # in place: one float copy, not three
+        pixels = torch.empty(image.shape, device=image.device, memory_format=torch.channels_last).copy_(image).sub_(128.0)
+        first = self.conv[0]
+        hidden = nn.functional.conv2d(pixels, first.weight * (1.0 / 128.0), first.bias, first.stride)
+        return self.conv[1:](hidden)
 
 
 class CarRacingTeacher(FeedForwardActorCritic):
@@ -676,22 +688,3 @@ class CarRacingTeacher(FeedForwardActorCritic):
         used = sketch.reshape(len(sketch), NUM_CELLS) > 0.5
         logits = self.actor(hidden).masked_fill(used, torch.finfo(torch.float32).min)
         return Categorical(logits=logits), self.critic(hidden).squeeze(-1)
-
-
-def main(argv=None) -> None:
-    """python -m envs.carracing convert formula1.py out.npz: the reference's formula1.py (a Python file
-    of RaceTrack(name=..., xy=[...]) definitions, parsed, not run) to an .npz and its _meta.json."""
-    args = sys.argv[1:] if argv is None else argv
-    if len(args) != 3 or args[0] != "convert":
-        print("usage: python -m envs.carracing convert formula1.py out.npz", file=sys.stderr)
-        sys.exit(2)
-    try:
-        names = convert_formula1(args[1], args[2])
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        sys.exit(2)
-    print(f"wrote {len(names)} tracks to {args[2]}: {', '.join(names)}")
-
-
-if __name__ == "__main__":
-    main()

@@ -17,6 +17,7 @@ import json
 import math
 import os
 import pickle
+import sys
 import zipfile
 
 import numpy as np
@@ -459,3 +460,22 @@ def track_metrics(track: Track) -> tuple[float, float, int]:
     kerb = track.kerb
     sharp_turns = int(np.sum(kerb & ~np.roll(kerb, 1))) if not kerb.all() else 1
     return length, curvature, sharp_turns
+
+
+def main(argv=None) -> None:
+    """python -m envs.carracing_tracks convert formula1.py out.npz: the reference's formula1.py (a Python file
+    of RaceTrack(name=..., xy=[...]) definitions, parsed, not run) to an .npz and its _meta.json."""
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 3 or args[0] != "convert":
+        print("usage: python -m envs.carracing_tracks convert formula1.py out.npz", file=sys.stderr)
+        sys.exit(2)
+    try:
+        names = convert_formula1(args[1], args[2])
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)
+    print(f"wrote {len(names)} tracks to {args[2]}: {', '.join(names)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -202,14 +202,18 @@ def main(argv=None) -> None:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, axes = plt.subplots(1, 2, figsize=(8, 0.5 + 0.5 * len(summaries)))
+        fig, axes = plt.subplots(1, 2, figsize=(8, 1.4 + 0.5 * len(summaries)))
         for ax, key in zip(axes, ("iqm", "optimality_gap")):
             for i, s in enumerate(summaries.values()):
                 low, high = s[key + "_ci"]
                 ax.barh(i, high - low, left=low, height=0.6, alpha=0.6)
                 ax.plot([s[key]], [i], "k|", markersize=12)
             ax.set_yticks(range(len(summaries)), list(summaries) if key == "iqm" else [""] * len(summaries))
-            ax.set_title(key.replace("_", " "))
+            ax.set_title("IQM (higher is better)" if key == "iqm" else "optimality gap (lower is better)")
+            ax.set_xlabel(options.metric.replace("_", " "))
+            if options.metric == "solved_rate":  # both statistics of a rate lie in [0, 1]
+                ax.set_xlim(0, 1)
+        fig.suptitle(f"95% stratified-bootstrap intervals over {BOOTSTRAP_REPETITIONS} resamples", fontsize=9)
         fig.tight_layout()
         fig.savefig(options.plot, dpi=100)
 

@@ -53,3 +53,12 @@ class HeldOutLevel:
 
     generate: Callable[[int, np.random.Generator], LevelBatch]
     max_steps: int
+
+
+class HeldOutLevels(dict):
+    """An env's held-out set, name -> HeldOutLevel in the benchmark's order: what `env.test_levels()`
+    returns for every env, each built by its env module's `held_out_levels`. Looking up an unknown name
+    raises ValueError listing the known ones (one line, for a command-line error)."""
+
+    def __missing__(self, name):
+        raise ValueError(f"unknown held-out level {name!r}: expected one of {', '.join(self)}")

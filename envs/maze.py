@@ -2,8 +2,8 @@
 
 Everything an algorithm script needs for the maze lives here: the level batch, the student env
 (all copies stepped at once with numpy), the teacher's MDP (PAIRED's adversary), the DR and empty-room
-generators, ACCEL's mutation, level metrics, rendering and the paper's networks. The 12 held-out test
-mazes are in `envs/maze_heldout.py`.
+generators, ACCEL's mutation, level metrics, rendering and the paper's networks. The level batch
+itself is in `envs/maze_levels.py`, the 12 held-out test mazes in `envs/maze_heldout.py`.
 
 Coordinates are (x, y): x the column from the left, y the row from the top, outer wall ring included.
 Directions: 0 east (+x), 1 south (+y), 2 west, 3 north.
@@ -11,17 +11,16 @@ Directions: 0 east (+x), 1 south (+y), 2 west, 3 north.
 
 from __future__ import annotations
 
-import dataclasses
-import os
-
 import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
 
-from envs.levels import HeldOutLevel, LevelBatch
+from envs.fast_paths import MazeStudentFastPath, MazeTeacherFastPath
+from envs.levels import HeldOutLevels
+from envs.maze_heldout import held_out_levels
+from envs.maze_levels import MazeLevels, empty_grid, random_free_cells
 from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
-from envs.sparse_projection import RunningConvGates, sparse_gate_inputs
 
 EMPTY, WALL, GOAL = 0, 1, 2
 # MiniGrid's (type, colour, state) encoding of each cell code; the networks divide it by 10.
@@ -36,36 +35,6 @@ TRAIN_SIZE = 15
 TRAIN_MAX_STEPS = 250
 BLOCK_BUDGETS = {"maze": 60, "maze25": 25}  # maze: uniform budget of 0-59 walls; maze25: 25 walls
 NOISE_DIM = 50
-
-
-@dataclasses.dataclass
-class MazeLevels(LevelBatch):
-    """A batch of mazes: walls [B, H, W] bool (outer ring included), goal and agent start [B, 2] as
-    (x, y), and the start direction [B] (RANDOM_DIRECTION: drawn when the level is reset)."""
-
-    walls: np.ndarray
-    goal: np.ndarray
-    agent: np.ndarray
-    agent_dir: np.ndarray
-
-    @property
-    def size(self) -> tuple[int, int]:
-        return self.walls.shape[1], self.walls.shape[2]
-
-
-def empty_grid(n: int, size: int = TRAIN_SIZE) -> np.ndarray:
-    """n grids of size x size with only the outer wall ring."""
-    walls = np.zeros((n, size, size), dtype=bool)
-    walls[:, [0, -1], :] = True
-    walls[:, :, [0, -1]] = True
-    return walls
-
-
-def random_free_cells(free: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One uniformly random True cell per grid of free [B, H, W], as (x, y) [B, 2]."""
-    flat = np.where(free.reshape(len(free), -1), rng.random(free.reshape(len(free), -1).shape), -1.0)
-    index = flat.argmax(axis=1)
-    return np.stack([index % free.shape[2], index // free.shape[2]], axis=1)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -318,7 +287,7 @@ class MazeEnv:
         """ACCEL's "empty" generator: no walls, goal and agent on two distinct random interior cells."""
         cells = np.argsort(rng.random((n, (TRAIN_SIZE - 2) ** 2)), axis=1)[:, :2]
         xy = np.stack([cells % (TRAIN_SIZE - 2) + 1, cells // (TRAIN_SIZE - 2) + 1], axis=2)
-        return MazeLevels(empty_grid(n), xy[:, 0], xy[:, 1], np.full(n, RANDOM_DIRECTION, np.int8))
+        return MazeLevels(empty_grid(n, TRAIN_SIZE), xy[:, 0], xy[:, 1], np.full(n, RANDOM_DIRECTION, np.int8))
 
     def mutate(self, levels: MazeLevels, rng: np.random.Generator, num_edits: int = 5) -> MazeLevels:
         """ACCEL's maze editor, as the reference's ACCEL mazes edit (dcd's `mutate_level` with the
@@ -376,13 +345,20 @@ class MazeEnv:
         student's expected return, it gives the level's true regret."""
         return optimal_returns(levels, TRAIN_MAX_STEPS)
 
-    def test_levels(self) -> dict[str, HeldOutLevel]:
-        from envs.maze_heldout import held_out_mazes
-
-        return held_out_mazes()
+    def test_levels(self) -> HeldOutLevels:
+        """The 12 held-out mazes (`envs.maze_heldout.held_out_levels`)."""
+        return held_out_levels()
 
     level_metrics = staticmethod(level_metrics)
     render = staticmethod(render_levels)
+
+    def render_trajectory(self, level: MazeLevels, positions: np.ndarray) -> np.ndarray:
+        """One level's image [H*8, W*8, 3] (level: a batch of one) with the cells an agent visited in
+        blue: positions [T, 2] are its (x, y) cells, e.g. agent_positions() collected over an episode."""
+        cells = np.asarray(positions, dtype=np.int64).reshape(-1, 2)
+        visited = np.zeros((1, *level.size), dtype=bool)
+        visited[0, cells[:, 1], cells[:, 0]] = True
+        return render_levels(level, visited)[0]
 
     # --- the vectorized student env ---------------------------------------------------------------
     def reset(self, levels: MazeLevels, max_steps: int = TRAIN_MAX_STEPS) -> dict:
@@ -452,30 +428,16 @@ class MazeEnv:
 # ---------------------------------------------------------------------------------------------------
 # Networks: the paper's, with the calling convention of envs/nets.py.
 # ---------------------------------------------------------------------------------------------------
-def conv_matrix_indices(channels_in: int, channels_out: int, size: int, kernel: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Where each weight of a `kernel` x `kernel` convolution (no padding, stride 1) over a `size` x
-    `size` x `channels_in` image lands in the matrix of the same linear map: returns the flat matrix
-    positions and, for each, the flat index into the conv's weight [out, in, ky, kx]. Rows of the matrix
-    are the image's pixels flattened as (y, x, channel); columns are the conv's outputs flattened as
-    nn.Flatten does, (channel, y, x)."""
-    out_size = size - kernel + 1
-    co, ci, ky, kx, oy, ox = torch.meshgrid(*(torch.arange(n) for n in (channels_out, channels_in, kernel, kernel, out_size, out_size)), indexing="ij")
-    row = ((oy + ky) * size + (ox + kx)) * channels_in + ci
-    column = (co * out_size + oy) * out_size + ox
-    weight_index = ((co * channels_in + ci) * kernel + ky) * kernel + kx
-    return (row * channels_out * out_size**2 + column).reshape(-1), weight_index.reshape(-1)
-
-
 class MazeStudent(RecurrentCategoricalActorCritic):
     """Conv 3->16 (3x3) on the 5x5 view -> 144, ReLU; direction one-hot -> Linear 5; LSTM 256;
     actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1.
 
-    The conv over a 5x5 view is a linear map from 75 inputs to 144 outputs. It runs as one matmul with
-    that map's matrix, built from the conv's weights (with the image's scaling by 1/10 folded in):
-    measured 1.5-4x cheaper on CPU than the conv call at a rollout step's batch of 32
-    (tests/test_envs_maze.py checks both give the same features and gradients). Likewise the direction's
-    one-hot times the embedding is one small matmul of the one-hot with a 4-row table. Acting folds the
-    direction further, through the LSTM's input weights, into a table of its share of the gates."""
+    To try another network, subclass it: a subclass runs exactly what it defines. This class itself
+    acts through a faster path derived from it (envs/fast_paths.py), which tests/test_fast_paths.py
+    checks against it."""
+
+    FastPath = MazeStudentFastPath
+    image_scale = 10.0  # the view's MiniGrid codes are divided by 10
 
     def __init__(self, hidden_size: int = 256):
         super().__init__()
@@ -484,44 +446,12 @@ class MazeStudent(RecurrentCategoricalActorCritic):
         self.lstm = ResettableLSTM(16 * 3 * 3 + 5, hidden_size)
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, NUM_ACTIONS), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
-        positions, weight_index = conv_matrix_indices(3, 16, VIEW_SIZE, 3)
-        self.register_buffer("conv_positions", positions, persistent=False)
-        self.register_buffer("conv_weight_index", weight_index, persistent=False)
-        self.conv_matrix_shape = (VIEW_SIZE * VIEW_SIZE * 3, 16 * (VIEW_SIZE - 2) ** 2)
-
-    def input_maps(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The conv's matrix [75, 144] applied to the raw image (it includes the division by 10), its
-        bias per output (channel, y, x), and the direction's embedding per direction [4, 5]."""
-        rows, columns = self.conv_matrix_shape
-        weight = self.conv.weight.reshape(-1).index_select(0, self.conv_weight_index) / 10.0
-        matrix = weight.new_zeros(rows * columns).scatter(0, self.conv_positions, weight).view(rows, columns)
-        direction_table = self.direction_embed.weight.t() + self.direction_embed.bias
-        return matrix, self.conv.bias.repeat_interleave((VIEW_SIZE - 2) ** 2), direction_table
 
     def features(self, obs: dict) -> torch.Tensor:
-        """[ReLU(conv(view / 10)) flattened (144), direction embedding (5)] from the env's observation."""
-        image = obs["image"]
-        matrix, bias, direction_table = self.input_maps()
-        view = torch.relu(torch.addmm(bias, image.reshape(len(image), len(matrix)).float(), matrix))
-        direction = nn.functional.one_hot(obs["direction"].long(), 4).to(view.dtype) @ direction_table
+        """[ReLU(conv(view / 10)) flattened as (channel, y, x), direction embedding] from the env's observation."""
+        view = torch.relu(self.conv(obs["image"].permute(0, 3, 1, 2).float() / self.image_scale)).flatten(1)
+        direction = self.direction_embed(nn.functional.one_hot(obs["direction"].long(), 4).float())
         return torch.cat([view, direction], dim=1)
-
-    def acting_weights(self) -> dict[str, torch.Tensor]:
-        """The conv's matrix and bias, the LSTM input weights of the view's 144 features, and the
-        direction's share of the gates per direction (embedding x its LSTM input weights + the LSTM's
-        biases) [4, 4H]; the heads and recurrent weights as every recurrent net's."""
-        weights = super().acting_weights()
-        matrix, bias, direction_table = self.input_maps()
-        view_features = matrix.shape[1]
-        lstm_input = weights.pop("lstm_input")
-        direction_gates = torch.addmm(weights.pop("lstm_bias"), direction_table, lstm_input[view_features:])
-        return {**weights, "conv": matrix, "conv_bias": bias, "view_input": lstm_input[:view_features].contiguous(), "direction_gates": direction_gates}
-
-    def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
-        """W_ih x + b as the view's features times their input weights plus the direction's row."""
-        image = obs["image"]
-        view = torch.addmm(weights["conv_bias"], image.reshape(len(image), -1).float(), weights["conv"]).relu_()
-        return weights["direction_gates"].index_select(0, obs["direction"].long()).addmm_(view, weights["view_input"])
 
 
 class MazeTeacher(RecurrentCategoricalActorCritic):
@@ -529,30 +459,20 @@ class MazeTeacher(RecurrentCategoricalActorCritic):
     LSTM 256; actor 256 -> 32 tanh -> 169 logits; critic 256 -> 32 tanh -> 1. `conv_channels` below
     the paper's 128 gives a lighter teacher (its LSTM input shrinks in proportion).
 
-    The LSTM's input projection W_ih x (22M weights at 128 channels) is computed from the cells of the
-    grid that changed since the previous step (`envs/sparse_projection.py`): a teacher step changes at
-    most one cell of the image, so a training sequence or an acting step projects only the conv windows
-    over the changed cells, plus the empty grid every episode starts from once. It equals the dense product of `features`
-    (tests/test_sparse_projection.py checks outputs and gradients). With `sparse_inputs` False, or
-    CLEANUED_DENSE_TEACHER=1 in the environment when the net is built, the net runs the plain dense
-    path: `features`, then the LSTM."""
+    Its LSTM's input projection has 22M weights at 128 channels. This class acts and trains through a
+    faster path derived from it (envs/fast_paths.py): a teacher step changes at most one cell of the
+    grid, so only the conv windows over changed cells are projected. A subclass runs exactly what it
+    defines."""
 
+    FastPath = MazeTeacherFastPath
     image_scale = 10.0  # the grid's MiniGrid codes are divided by 10
 
     def __init__(self, num_steps: int, size: int = TRAIN_SIZE, hidden_size: int = 256, conv_channels: int = 128):
         super().__init__()
         self.num_steps = num_steps
-        self.sparse_inputs = os.environ.get("CLEANUED_DENSE_TEACHER") != "1"
-        self.register_buffer("empty_image", torch.as_tensor(CELL_ENCODING[empty_grid(1, size)[0].astype(np.uint8)]), persistent=False)
         self.conv = nn.Sequential(layer_init(nn.Conv2d(3, conv_channels, 3)), nn.ReLU(), nn.Flatten())
         self.time_embed = layer_init(nn.Linear(num_steps, 10))
-        # Its 21692-wide input makes the input projection dominate: project all steps at once.
-        self.lstm = ResettableLSTM(conv_channels * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size, project_inputs_first=True)
-        # W_ih is stored transposed (same values and shape, strides (1, 4H)): the sparse path reads each
-        # position's weights as rows of W_ih^T and returns the gradient in that layout, with no transposed
-        # copy of the 22M weights in either direction.
-        weight_ih = self.lstm.lstm.weight_ih_l0
-        weight_ih.data = weight_ih.data.t().contiguous().t()
+        self.lstm = ResettableLSTM(conv_channels * (size - 2) ** 2 + 10 + NOISE_DIM, hidden_size)
         num_actions = (size - 2) ** 2
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, num_actions), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
@@ -565,37 +485,3 @@ class MazeTeacher(RecurrentCategoricalActorCritic):
         """The LSTM input's small dense part: the time embedding (10) and the noise (50)."""
         time = nn.functional.one_hot(obs["time"].long(), self.num_steps).float()
         return torch.cat([self.time_embed(time), obs["noise"].float()], dim=1)
-
-    def _hidden(self, obs: dict, state, done):
-        """A training sequence (T > 1) with `sparse_inputs`: the gate inputs from the changed cells, then
-        the LSTM's recurrence; otherwise (or if too many cells change) the dense path."""
-        num_copies = state[0].shape[1]
-        if self.sparse_inputs and len(obs["image"]) > num_copies:
-            lstm = self.lstm.lstm
-            projected = sparse_gate_inputs(self.conv[0], self.image_scale, self.empty_image, obs["image"], self.dense_features(obs),
-                                           lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0, num_copies)
-            if projected is not None:
-                return self.lstm.run_projected(projected, state, done), None
-        return super()._hidden(obs, state, done)
-
-    def acting_weights(self) -> dict:
-        """Every recurrent net's, plus for the sparse path: the running conv gates (W f(I) per copy,
-        on W_ih^T's conv rows as [C, P, 4H]), the time's share of the gates per step with the LSTM's
-        biases [num_steps, 4H] and the noise's input weights [50, 4H]."""
-        weights = super().acting_weights()
-        lstm_input = weights["lstm_input"]
-        time_size = self.time_embed.out_features
-        conv_size = len(lstm_input) - time_size - NOISE_DIM
-        conv_weight_t = lstm_input[:conv_size].view(self.conv[0].out_channels, -1, lstm_input.shape[1])
-        start_gates = self.conv(self.empty_image.permute(2, 0, 1).unsqueeze(0).float() / self.image_scale)[0] @ lstm_input[:conv_size]
-        running = RunningConvGates(self.conv[0], self.image_scale, self.empty_image, conv_weight_t, start_gates)
-        time_table = self.time_embed.weight.t() + self.time_embed.bias
-        time_gates = torch.addmm(weights["lstm_bias"], time_table, lstm_input[conv_size : conv_size + time_size])
-        return {**weights, "running_conv_gates": running, "time_gates": time_gates, "noise_input": lstm_input[conv_size + time_size :]}
-
-    def acting_gate_inputs(self, obs: dict, weights: dict) -> torch.Tensor:
-        """W_ih x + b as the running conv gates of the grid, the time's row and the noise's product."""
-        if not self.sparse_inputs:
-            return super().acting_gate_inputs(obs, weights)
-        gates = weights["running_conv_gates"](obs["image"])
-        return gates.addmm_(obs["noise"].float(), weights["noise_input"]).add_(weights["time_gates"].index_select(0, obs["time"].long()))

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.levels import HeldOutLevel
-from envs.maze import MazeLevels, empty_grid, random_free_cells
+from envs.levels import HeldOutLevel, HeldOutLevels
+from envs.maze_levels import MazeLevels, empty_grid, random_free_cells
 
 EAST = 0
 
@@ -256,14 +256,16 @@ def simple_crossings(n: int, rng: np.random.Generator, size: int = 11, num_cross
     return _levels(walls, np.tile([size - 2, size - 2], (n, 1)), np.tile([1, 1], (n, 1)), np.full(n, EAST))
 
 
-def held_out_mazes() -> dict[str, HeldOutLevel]:
+def held_out_levels() -> HeldOutLevels:
     """The 12 held-out mazes by short name, in the benchmark's order."""
     fixed = {name: fixed_maze(text) for name, text in LAYOUTS.items()}
-    return {
-        **fixed,
-        "SmallCorridor": HeldOutLevel(lambda n, rng: corridor_mazes(n, rng, 15), 2 * 15**2),
-        "LargeCorridor": HeldOutLevel(lambda n, rng: corridor_mazes(n, rng, 21), 2 * 21**2),
-        "PerfectMazeMedium": HeldOutLevel(perfect_mazes, 2 * 21**2),
-        "FourRooms": HeldOutLevel(four_rooms, 100),
-        "SimpleCrossingS11N5": HeldOutLevel(simple_crossings, 4 * 11**2),
-    }
+    return HeldOutLevels(
+        {
+            **fixed,
+            "SmallCorridor": HeldOutLevel(lambda n, rng: corridor_mazes(n, rng, 15), 2 * 15**2),
+            "LargeCorridor": HeldOutLevel(lambda n, rng: corridor_mazes(n, rng, 21), 2 * 21**2),
+            "PerfectMazeMedium": HeldOutLevel(perfect_mazes, 2 * 21**2),
+            "FourRooms": HeldOutLevel(four_rooms, 100),
+            "SimpleCrossingS11N5": HeldOutLevel(simple_crossings, 4 * 11**2),
+        }
+    )

@@ -5,7 +5,7 @@ The teacher's LSTM input at step t is x_t = [f(I_t), e_t]: f(I) = ReLU(conv(I / 
 dense rest (time embedding, noise). Its projection splits as W_ih x_t = W f(I_t) + V e_t. A teacher step
 changes at most one cell of the image (a wall, the goal, or a wall cleared under the agent, which the
 image does not show), and the conv output at a position depends only on the k x k cells of its window,
-so with the changes Δ_s = f(I_s) - f(I_{s-1}) (I_{-1} the reference image, the
+so with the changes Δ_s = f(I_s) - f(I_{s-1}) (I_{-1} a reference image: the batch's first image, the
 empty grid every teacher episode starts from):
 
     W f(I_t) = W f(I_ref) + sum_{s <= t} W Δ_s,

@@ -171,10 +171,11 @@ def plot_aggregates(summary: dict, path: str) -> None:
 
 
 def curve(rows: list[dict], columns: tuple, smooth: bool):
-    """(env steps, values) of the first of `columns` the run logged: rows without a value are skipped;
+    """(env steps, values) of the first of `columns` the run logged: rows without a value (or nan: no
+    episode finished) are skipped;
     a trailing mean over SMOOTHING logged values if `smooth`."""
     column = next((c for c in columns if c in rows[0]), None)
-    points = [(float(r["env_steps"]), float(r[column])) for r in rows if column and r.get(column) not in ("", None)]
+    points = [(float(r["env_steps"]), float(r[column])) for r in rows if column and r.get(column) not in ("", None, "nan")]
     if not points:
         return None
     steps, values = np.array(points).T

@@ -9,6 +9,10 @@ import torch  # noqa: E402
 
 torch.set_num_threads(1)
 
+import envs  # noqa: E402
+
+envs.keep_freed_memory()  # as every script does on a CPU: the tests' PPO updates run at the scripts' speed
+
 
 def shared_f1_track_file() -> str:
     """The F1 track data shipped with cleanued (envs/data), or $CLEANUED_F1_TRACKS if set to a file."""

@@ -180,26 +180,26 @@ def test_children_fill_free_room_first(script):
 # The paper's defaults and bad input
 # ---------------------------------------------------------------------------------------------------
 def test_accel_maze_defaults_are_the_papers():
-    args = accel.resolve_args(accel.Args(env="maze"))
+    args = accel.resolve_args(accel.paper_args(env="maze"))
     assert (args.replay_prob, args.level_buffer_size, args.temperature, args.staleness_coef, args.num_edits) == (0.8, 4000, 0.3, 0.5, 5)
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda) == (32, 256, 1e-4, 0.995, 0.95)
     assert (args.generator, args.edit_levels, args.min_fill_ratio) == ("random", "easy", 0.5)
 
 
 def test_paired_evo_maze_defaults_are_the_papers():
-    args = paired_evo.resolve_args(paired_evo.Args(env="maze"))
-    assert (args.replay_prob, args.level_buffer_size, args.kl_coef, args.flexible) == (0.5, 4000, 0.0, False)
+    args = paired_evo.resolve_args(paired_evo.paper_args(env="maze"))
+    assert (args.replay_prob, args.level_buffer_size, args.bc_coef, args.flexible) == (0.5, 4000, 0.0, False)
     assert (args.temperature, args.staleness_coef, args.num_edits, args.student_ent_coef) == (0.3, 0.5, 5, 0.0)
-    flexible = paired_evo.resolve_args(paired_evo.Args(env="maze", flexible=True))
-    assert (flexible.replay_prob, flexible.level_buffer_size, flexible.kl_coef) == (0.9, 4000, 0.0)
+    flexible = paired_evo.resolve_args(paired_evo.paper_args(env="maze", flexible=True))
+    assert (flexible.replay_prob, flexible.level_buffer_size, flexible.bc_coef) == (0.9, 4000, 0.0)
     # an explicit replay probability wins over either default
-    assert paired_evo.resolve_args(paired_evo.Args(env="maze", flexible=True, replay_prob=0.3)).replay_prob == 0.3
-    assert paired_evo.resolve_args(paired_evo.Args(env="maze", replay_prob=0.7)).replay_prob == 0.7
+    assert paired_evo.resolve_args(paired_evo.paper_args(env="maze", flexible=True, replay_prob=0.3)).replay_prob == 0.3
+    assert paired_evo.resolve_args(paired_evo.paper_args(env="maze", replay_prob=0.7)).replay_prob == 0.7
 
 
 def test_an_odd_batch_is_fine_when_every_level_is_edited():
-    assert accel.resolve_args(accel.Args(num_envs=5, edit_levels="batch")).num_envs == 5
-    assert paired_evo.resolve_args(paired_evo.Args(num_envs=5, edit_levels="batch")).num_envs == 5
+    assert accel.resolve_args(accel.paper_args(num_envs=5, edit_levels="batch")).num_envs == 5
+    assert paired_evo.resolve_args(paired_evo.paper_args(num_envs=5, edit_levels="batch")).num_envs == 5
 
 
 BAD = [dict(num_envs=5), dict(num_edits=0), dict(replay_prob=1.5), dict(env="mars")]
@@ -209,15 +209,16 @@ BAD = [dict(num_envs=5), dict(num_edits=0), dict(replay_prob=1.5), dict(env="mar
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
 def test_bad_arguments_exit_with_status_2(script, bad, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        script.resolve_args(script.Args(**bad))
+        make = script.Args if "env" in bad else script.paper_args  # an unknown env has no paper values
+        script.resolve_args(make(**bad))
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.startswith("error: ")
 
 
-@pytest.mark.parametrize("bad", [dict(kl_coef=-0.1), dict(kl_interval=0), dict(replay_prob=1.5, flexible=True)],
+@pytest.mark.parametrize("bad", [dict(bc_coef=-0.1), dict(bc_interval=0), dict(replay_prob=1.5, flexible=True)],
                          ids=lambda b: "-".join(f"{k}={v}" for k, v in b.items()))
 def test_paired_evo_bad_cloning_arguments_exit_with_status_2(bad, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        paired_evo.resolve_args(paired_evo.Args(**bad))
+        paired_evo.resolve_args(paired_evo.paper_args(**bad))
     assert exit_info.value.code == 2
     assert capsys.readouterr().err.startswith("error: ")

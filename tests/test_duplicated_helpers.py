@@ -17,6 +17,7 @@ PAIRED_FAMILY = ["paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py"
 DIFFERENT_BY_DESIGN = {
     "Args": ([], "each script's own options"),
     "resolve_args": ([["paired.py", "paired_hient.py"]], "each script checks its own options"),
+    "paper_args": ([["paired.py", "paired_hient.py", "accel.py"]], "a variant's defaults and run name are its script's"),
     "metric_names": ([["paired.py", "paired_hient.py"]], "each script logs its own columns"),
     "Rollout": ([PLR_FAMILY, PAIRED_FAMILY], "shaped from the env, or from a first observation (three agents)"),
     "minibatch_rows": ([PLR_FAMILY, PAIRED_FAMILY], "PAIRED's serves students and teacher of other sizes"),

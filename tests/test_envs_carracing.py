@@ -330,7 +330,7 @@ def test_level_images_have_one_size():
     levels = designed_levels(np.stack([CELLS, np.roll(CELLS, 1)]))
     images = env.render(levels)
     assert images.shape == (2, 128, 128, 3) and images.dtype == np.uint8
-    path = env.render_trajectory(levels, 0, np.array([[0.0, 0.0], [10.0, 10.0]]))
+    path = env.render_trajectory(levels[0], np.array([[0.0, 0.0], [10.0, 10.0]]))
     assert path.shape == (128, 128, 3) and not np.array_equal(path, images[0])
 
 
@@ -424,6 +424,37 @@ def test_student_net_shapes_and_beta_samples():
     assert torch.isfinite(dist.log_prob(student.sample(dist))).all()
     assert torch.isfinite(dist.log_prob(extreme.clamp(1e-6, 1 - 1e-6))).all()
     assert dist.batch_shape == (5,) and dist.event_shape == (3,)  # KL / entropy summed over the 3 dims
+
+
+def test_student_fast_conv_path_equals_the_definition(monkeypatch):
+    """CarRacingStudent's faster conv path (centred pixels, the 1/128 folded into the first conv,
+    channels-last) gives the plain definition's outputs, log-probabilities, entropies, values and
+    parameter gradients, on a batch of real views and saturated pixels (0 and 255)."""
+    torch.manual_seed(0)
+    student = CarRacingStudent()
+    env = make_env(3, training=True)
+    rng = np.random.default_rng(0)
+    images = [env.reset(env.random_levels(3, rng))["image"]]
+    for _ in range(4):
+        images.append(env.step(rng.random((3, 3)))[0]["image"])
+    image = torch.from_numpy(np.concatenate(images))
+    image[0] = 0
+    image[1] = 255
+    actions = torch.rand(len(image), 3).clamp(1e-6, 1 - 1e-6)
+
+    def run():
+        student.zero_grad()
+        dist, value = student.dist_and_value({"image": image})
+        logprob, entropy = dist.log_prob(actions), dist.entropy()
+        (logprob.sum() + entropy.sum() + (value**2).sum()).backward()
+        return [dist.base_dist.concentration1, dist.base_dist.concentration0, logprob, entropy, value] + [p.grad.clone() for p in student.parameters()]
+
+    fast = run()
+    monkeypatch.setenv("CLEANUED_PLAIN_NETS", "1")
+    plain = run()
+    for a, b in zip(fast, plain):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-5 * b.abs().max().item())
+    assert torch.equal(student.conv_features(image[:2]), student.conv(image[:2].float() / 128 - 1))  # plain: the definition
 
 
 def test_the_shipped_f1_tracks_are_the_default(monkeypatch):

@@ -809,20 +809,15 @@ def test_student_network_shapes_and_env_obs():
     assert torch.allclose(net.get_value(seq, state, done)[:N], first, atol=1e-5)
 
 
-def test_student_view_features_equal_the_conv_they_replace():
-    # The student runs its 3x3 conv over the 5x5 view as one matmul with the conv's matrix, and its
-    # direction embedding as a row lookup; both must give what nn.Conv2d + ReLU and one-hot x Linear give,
-    # and the same gradients.
+def test_student_features_by_hand():
+    # The student's features: its 3x3 conv + ReLU over the 5x5 view (codes divided by 10), then its
+    # direction's embedding (a Linear on the one-hot: the weight's column plus the bias).
     torch.manual_seed(0)
     net = MazeStudent()
-    view = torch.randint(0, 11, (64, 5, 5, 3), dtype=torch.uint8)
-    view[0] = 0
+    view = torch.zeros((2, 5, 5, 3), dtype=torch.uint8)
     view[0, 1, 3] = torch.tensor([2, 5, 0], dtype=torch.uint8)  # one wall, every other cell 0
-    reference = torch.relu(net.conv(view.permute(0, 3, 1, 2).float() / 10.0)).flatten(1)
-    direction = torch.randint(0, 4, (64,))
-    all_features = net.features({"image": view, "direction": direction})
-    features = all_features[:, :144]
-    assert torch.allclose(features, reference, atol=1e-6)
+    direction = torch.tensor([2, 0])
+    features = net.features({"image": view, "direction": direction})
     # By hand for view 0: the output at (y, x) sees the wall at (1, 3) through kernel tap (1 - y, 3 - x).
     w, b = net.conv.weight.detach(), net.conv.bias.detach()
     by_hand = b.view(16, 1, 1).repeat(1, 3, 3)
@@ -830,19 +825,11 @@ def test_student_view_features_equal_the_conv_they_replace():
         for x in range(3):
             if 0 <= 1 - y < 3 and 0 <= 3 - x < 3:
                 by_hand[:, y, x] += w[:, :, 1 - y, 3 - x] @ torch.tensor([0.2, 0.5, 0.0])
-    assert torch.allclose(features[0], torch.relu(by_hand).flatten(), atol=1e-6)
-    weights = torch.randn_like(reference)
-    expected = torch.autograd.grad((reference * weights).sum(), (net.conv.weight, net.conv.bias))
-    got = torch.autograd.grad((features * weights).sum(), (net.conv.weight, net.conv.bias))
-    for a, b in zip(got, expected):
-        assert torch.allclose(a, b, atol=1e-4)
-    one_hot = net.direction_embed(torch.nn.functional.one_hot(direction, 4).float())
-    assert torch.allclose(all_features[:, 144:], one_hot, atol=1e-7)
-    weights = torch.randn_like(one_hot)
-    expected = torch.autograd.grad((one_hot * weights).sum(), (net.direction_embed.weight, net.direction_embed.bias))
-    got = torch.autograd.grad((all_features[:, 144:] * weights).sum(), (net.direction_embed.weight, net.direction_embed.bias))
-    for a, b in zip(got, expected):
-        assert torch.allclose(a, b, atol=1e-5)
+    assert torch.allclose(features[0, :144], torch.relu(by_hand).flatten(), atol=1e-6)
+    assert torch.allclose(features[1, :144], torch.relu(b).repeat_interleave(9), atol=1e-6)  # an all-zero view
+    embed = net.direction_embed
+    for row, d in enumerate(direction.tolist()):
+        assert torch.allclose(features[row, 144:], embed.weight[:, d] + embed.bias, atol=1e-7)
 
 
 def test_student_acting_without_gradient_equals_the_training_path():

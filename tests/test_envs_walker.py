@@ -7,7 +7,6 @@ height (low, high), stair height (low, high), stair steps.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -15,7 +14,9 @@ import torch
 from gymnasium.envs.box2d.bipedal_walker import LIDAR_RANGE, BipedalWalker, BipedalWalkerHeuristics
 
 import envs
-from envs.walker import (
+from envs.walker import TRAIN_MAX_STEPS, WalkerEnv, WalkerStudent, WalkerTeacher
+from envs.walker_stepping import DesignedBipedalWalker, TerrainLidar, WalkerGroup
+from envs.walker_terrain import (
     CUSTOM,
     GYM_FLAT,
     GYM_HARDCORE,
@@ -26,14 +27,7 @@ from envs.walker import (
     PARAM_NAMES,
     TERRAIN_HEIGHT,
     TERRAIN_STEP,
-    TRAIN_MAX_STEPS,
-    DesignedBipedalWalker,
-    TerrainLidar,
-    WalkerEnv,
-    WalkerGroup,
     WalkerLevels,
-    WalkerStudent,
-    WalkerTeacher,
 )
 
 FLAT = [0, 0, 0, 0, 0, 0, 0, 1]
@@ -59,7 +53,7 @@ def kinds(walker: DesignedBipedalWalker) -> set[str]:
 
 @pytest.fixture(scope="module")
 def walker_env():
-    env = WalkerEnv(2, seed=0, num_workers=0)
+    env = WalkerEnv(2, seed=0, )
     yield env
     env.close()
 
@@ -157,7 +151,7 @@ def test_rewards_equal_gymnasium_for_the_same_motion():
     """Roughness 1 and no obstacles is gymnasium's v3 course: standing still, then flailing until the
     hull hits the ground, gives gymnasium's observations and rewards exactly (the -100 fall included),
     and the copy then restarts the same level."""
-    env = WalkerEnv(1, seed=0, num_workers=0)
+    env = WalkerEnv(1, seed=0, )
     obs = env.reset(levels([1, 0, 0, 0, 0, 0, 0, 1], seeds=[21]))
     gym_walker = BipedalWalker()
     gym_obs, _ = gym_walker.reset(seed=21)
@@ -272,11 +266,11 @@ def test_a_level_plays_the_same_whatever_was_played_before():
     rng = np.random.default_rng(0)
     level_a, level_b = levels([3, 1, 2, 0.5, 1, 0.5, 1, 4], seeds=[7]), levels([1, 0, 0, 0, 0, 0, 0, 1], seeds=[3])
     actions = rng.uniform(-0.3, 0.3, (120, 1, 4))
-    fresh = WalkerEnv(1, seed=0, num_workers=0)
+    fresh = WalkerEnv(1, seed=0, )
     fresh.reset(level_b, max_steps=120)
     expected = run_episode(fresh, actions)
     replay = run_episode(fresh, actions)
-    used = WalkerEnv(1, seed=0, num_workers=0)
+    used = WalkerEnv(1, seed=0, )
     used.reset(level_a)
     run_episode(used, rng.uniform(-1, 1, (300, 1, 4)))
     used.reset(level_b, max_steps=120)
@@ -288,7 +282,7 @@ def test_a_level_plays_the_same_whatever_was_played_before():
 
 
 def test_time_limit_truncates_and_restarts_the_level():
-    env = WalkerEnv(2, seed=0, num_workers=0)
+    env = WalkerEnv(2, seed=0, )
     first = env.reset(levels(FLAT, FLAT, seeds=[1, 2]), max_steps=3)["state"]
     zero = np.zeros((2, 4), dtype=np.float32)
     for _ in range(2):
@@ -302,7 +296,7 @@ def test_time_limit_truncates_and_restarts_the_level():
 
 
 def test_actions_are_clipped_to_the_box():
-    env = WalkerEnv(1, seed=0, num_workers=0)
+    env = WalkerEnv(1, seed=0, )
     env.reset(levels(FLAT))
     _, wild, _, _, _ = env.step(np.array([[5.0, -7.0, 3.0, -2.0]]))
     env.reset(levels(FLAT))
@@ -311,46 +305,15 @@ def test_actions_are_clipped_to_the_box():
     env.close()
 
 
-def test_worker_processes_match_the_in_process_path():
-    """This process and 1 or 2 workers stepping shares of the copies give what this process alone gives;
-    the returned arrays are the caller's (the next step does not overwrite them)."""
-    results = []
-    for workers in (0, 1, 2):
-        env = WalkerEnv(5, seed=0, num_workers=workers)
-        assert len(env.shares) == workers + 1
-        batch = env.random_levels(5, np.random.default_rng(1))
-        out = [env.reset(batch, max_steps=25)["state"]]
-        for action in np.random.default_rng(2).uniform(-1, 1, (60, 5, 4)):
-            obs, reward, terminated, truncated, info = env.step(action)
-            out += [obs["state"], reward, terminated, truncated, info["hull_position"]]
-        if workers:
-            processes = env._finalizer.peek()[2][0]
-            env.close()
-            env.close()  # safe twice
-            assert len(processes) == workers and not any(p.is_alive() for p in processes)
-        results.append(out)
-    for other in results[1:]:
-        assert all(np.array_equal(a, b) for a, b in zip(results[0], other))
-
-
-def test_a_worker_error_is_raised_by_the_env(monkeypatch):
-    """An exception in a worker process reaches the caller of step; the env still closes cleanly."""
-    parent = os.getpid()
-    advance = DesignedBipedalWalker.advance
-
-    def advance_in_parent_only(self, action):
-        if os.getpid() != parent:
-            raise RuntimeError("walker failed in a worker")
-        return advance(self, action)
-
-    monkeypatch.setattr(DesignedBipedalWalker, "advance", advance_in_parent_only)
-    env = WalkerEnv(4, seed=0, num_workers=1)
-    env.reset(levels(FLAT, FLAT, FLAT, FLAT))
-    with pytest.raises(RuntimeError, match="walker failed in a worker"):
-        env.step(np.zeros((4, 4)))
-    processes = env._finalizer.peek()[2][0]
-    env.close()
-    assert not any(p.is_alive() for p in processes)
+def test_returned_arrays_are_the_callers():
+    """A step's arrays are new ones: the next step does not overwrite them."""
+    env = WalkerEnv(3, seed=0)
+    env.reset(env.random_levels(3, np.random.default_rng(1)), max_steps=25)
+    actions = np.random.default_rng(2).uniform(-1, 1, (2, 3, 4))
+    obs, reward, terminated, truncated, info = env.step(actions[0])
+    kept = [a.copy() for a in (obs["state"], reward, terminated, truncated, info["hull_position"])]
+    env.step(actions[1])
+    assert all(np.array_equal(a, b) for a, b in zip(kept, (obs["state"], reward, terminated, truncated, info["hull_position"])))
 
 
 def test_bad_input_raises_value_error(walker_env):
@@ -364,7 +327,7 @@ def test_bad_input_raises_value_error(walker_env):
         walker_env.reset(levels(good))
     with pytest.raises(ValueError, match="course"):
         walker_env.reset(levels(good, good, course=7))
-    with pytest.raises(ValueError, match="unknown walker course"):
+    with pytest.raises(ValueError, match="unknown held-out level 'Mountains'"):
         walker_env.test_levels()["Mountains"]
 
 
@@ -427,7 +390,7 @@ def test_held_out_courses(walker_env):
 
 # --- teacher MDP -----------------------------------------------------------------------------------
 def test_teacher_maps_actions_onto_the_full_ranges():
-    env = WalkerEnv(3, seed=0, num_workers=0)
+    env = WalkerEnv(3, seed=0, )
     mdp = env.teacher()
     obs = mdp.reset(3)
     assert mdp.num_steps == 8 and mdp.action_space.shape == (1,)
@@ -461,9 +424,22 @@ def test_metrics_and_rendering(walker_env):
     images = walker_env.render(batch)
     assert images.dtype == np.uint8 and images.shape == (3, 96, 256, 3)
     trace = np.stack([np.linspace(5, 40, 50), np.full(50, TERRAIN_HEIGHT + 1.5)], axis=1)
-    run = walker_env.render_run(batch[0], trace)
+    run = walker_env.render_trajectory(batch[0], trace)
     assert run.shape == (96, 256, 3)
     assert np.sum(np.all(run == [220, 30, 30], axis=-1)) > 20 and not np.any(np.all(images[0] == [220, 30, 30], axis=-1))
+
+
+def test_thumbnails_show_every_stump_thick_and_dark(walker_env):
+    """A stump is one terrain step (1.3 pixels) wide: drawn to scale it vanishes from a grid of level
+    thumbnails. Each is drawn as a dark block at least 4 pixels wide and high."""
+    batch = levels([0, 0, 0, 0.5, 0.5, 0, 0, 1], seeds=[4])
+    stumps = [f for f in build(batch.params[0], seed=4).features if f.kind == "stump"]
+    image = walker_env.render(batch)[0].astype(int)
+    dark = image.sum(axis=-1) < 150  # sky and ground sum to 685 and 331
+    columns = np.flatnonzero(dark.any(axis=0))
+    runs = np.split(columns, np.flatnonzero(np.diff(columns) > 1) + 1)
+    assert len(stumps) > 5 and len(runs) == len(stumps)
+    assert all(len(run) >= 4 and dark[:, run].sum(axis=0).min() >= 4 for run in runs)
 
 
 def test_networks():
@@ -475,7 +451,7 @@ def test_networks():
     assert torch.all(student.actor_logstd == 0)
     assert student.dist(obs).mean.abs().max() < 0.1  # small policy head (gain 0.01)
     teacher = WalkerTeacher(8)
-    env = WalkerEnv(4, seed=0, num_workers=0)
+    env = WalkerEnv(4, seed=0, )
     tobs = {k: torch.as_tensor(v) for k, v in env.teacher().reset(4).items()}
     action, logprob, _, value, _ = teacher.get_action_and_value(tobs)
     assert action.shape == (4, 1) and logprob.shape == value.shape == (4,)
@@ -488,13 +464,3 @@ def test_make_gives_the_walker_interface():
     assert env.single_observation_space["state"].shape == (24,)
     assert TRAIN_MAX_STEPS == 2000 and env.training
     env.close()
-
-
-def test_worker_count_from_the_environment(monkeypatch):
-    monkeypatch.setenv("CLEANUED_WALKER_WORKERS", "0")
-    assert WalkerEnv(4, seed=0).num_workers == 0
-    monkeypatch.setenv("CLEANUED_WALKER_WORKERS", "3")
-    assert WalkerEnv(4, seed=0).num_workers == 3 and WalkerEnv(1, seed=0).num_workers == 0
-    monkeypatch.setenv("CLEANUED_WALKER_WORKERS", "two")
-    with pytest.raises(ValueError, match="CLEANUED_WALKER_WORKERS"):
-        WalkerEnv(4, seed=0)

@@ -25,7 +25,7 @@ def one_torch_thread():
 def test_accel_from_empty_rooms_learns_to_reach_the_goal():
     torch.manual_seed(0)
     np.random.seed(0)
-    args = accel.resolve_args(accel.Args(env="maze", generator="empty", num_envs=16, num_steps=128, learning_rate=3e-3,
+    args = accel.resolve_args(accel.paper_args(env="maze", generator="empty", num_envs=16, num_steps=128, learning_rate=3e-3,
                                          level_buffer_size=64, replay_prob=0.8))
     env = MazeEnv("maze", args.num_envs, seed=0)
     rng = np.random.default_rng(0)

@@ -49,7 +49,7 @@ class ShortEpisodeCarRacing(CarRacingEnv):
 def test_dr_student_learns_to_drive_down_the_opening_straight():
     torch.manual_seed(0)
     np.random.seed(0)
-    args = plr.resolve_args(plr.Args(env="carracing", replay_prob=0.0, num_envs=4, num_steps=2 * EPISODE_STEPS,
+    args = plr.resolve_args(plr.paper_args(env="carracing", replay_prob=0.0, num_envs=4, num_steps=2 * EPISODE_STEPS,
                                      learning_rate=3e-3, update_epochs=4, num_minibatches=2))
     env = ShortEpisodeCarRacing(args.num_envs, seed=0)
     env.training = False  # the env's own reward, as measured (see the module docstring)

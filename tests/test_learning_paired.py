@@ -27,7 +27,7 @@ def one_torch_thread():
 def test_paired_students_improve_on_the_teachers_levels(one_torch_thread):
     torch.manual_seed(0)
     np.random.seed(0)
-    args = paired.resolve_args(paired.Args(env="maze", num_envs=16, num_steps=128, learning_rate=3e-3))
+    args = paired.resolve_args(paired.paper_args(env="maze", num_envs=16, num_steps=128, learning_rate=3e-3))
     # The light teacher trains one PPO epoch per update: its update steps its LSTM in a Python loop and
     # would otherwise take half of this test's time; it plays no part in how the students learn.
     teacher_args = dataclasses.replace(args, update_epochs=1)

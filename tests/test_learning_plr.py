@@ -13,7 +13,7 @@ from envs.maze import MazeEnv
 def test_dr_student_learns_to_reach_the_goal_in_empty_rooms():
     torch.manual_seed(0)
     np.random.seed(0)
-    args = plr.resolve_args(plr.Args(env="maze", num_envs=16, num_steps=128, learning_rate=3e-3, replay_prob=0.0))
+    args = plr.resolve_args(plr.paper_args(env="maze", num_envs=16, num_steps=128, learning_rate=3e-3, replay_prob=0.0))
     env = MazeEnv("maze", args.num_envs, seed=0)
     rng = np.random.default_rng(0)
     agent = env.Student()

@@ -27,7 +27,8 @@ import torch
 import plr
 from envs.evaluation import evaluate
 from envs.levels import HeldOutLevel
-from envs.walker import CUSTOM, PARAM_LOW, SEED_BOUND, WalkerEnv, WalkerLevels
+from envs.walker import WalkerEnv
+from envs.walker_terrain import CUSTOM, PARAM_LOW, SEED_BOUND, WalkerLevels
 
 SEED = 0
 UPDATES = 25
@@ -40,13 +41,12 @@ def flat_levels(n: int, rng: np.random.Generator) -> WalkerLevels:
     return WalkerLevels(np.tile(PARAM_LOW, (n, 1)), rng.integers(0, SEED_BOUND, n), np.full(n, CUSTOM, np.int8))
 
 
-def test_dr_student_learns_to_stay_up_on_flat_terrain(monkeypatch):
-    monkeypatch.setenv("CLEANUED_WALKER_WORKERS", "0")  # the evaluation's env steps its copies in this process
+def test_dr_student_learns_to_stay_up_on_flat_terrain():
     torch.manual_seed(SEED)
     np.random.seed(SEED)
-    args = plr.resolve_args(plr.Args(env="walker", num_envs=8, num_steps=256, learning_rate=1e-3, update_epochs=5,
+    args = plr.resolve_args(plr.paper_args(env="walker", num_envs=8, num_steps=256, learning_rate=1e-3, update_epochs=5,
                                      num_minibatches=4, replay_prob=0.0))
-    env = WalkerEnv(args.num_envs, seed=SEED, num_workers=0)
+    env = WalkerEnv(args.num_envs, seed=SEED)
     rng = np.random.default_rng(SEED)
     agent = env.Student()
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)

@@ -5,9 +5,9 @@ import pytest
 
 from envs.levels import HeldOutLevel
 from envs.maze import MazeEnv, MazeLevels, shortest_path_lengths
-from envs.maze_heldout import MAZE25_BENCHMARK, held_out_mazes
+from envs.maze_heldout import MAZE25_BENCHMARK, held_out_levels
 
-MAZES = held_out_mazes()
+MAZES = held_out_levels()
 FIXED = ("SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3")
 PROCEDURAL = ("SmallCorridor", "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5")
 SIZE_AND_MAX_STEPS = {
@@ -95,6 +95,8 @@ def test_names_order_sizes_and_max_steps():
         assert isinstance(levels, MazeLevels) and len(levels) == 3
         assert levels.walls.shape == (3, size, size) and levels.walls.dtype == bool
         assert levels.goal.shape == levels.agent.shape == (3, 2) and levels.agent_dir.shape == (3,)
+    with pytest.raises(ValueError, match="unknown held-out level 'Mountains'"):
+        MAZES["Mountains"]
 
 
 @pytest.mark.parametrize("name", FIXED)

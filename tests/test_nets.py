@@ -1,11 +1,8 @@
-"""The fast sequence path of ResettableLSTM computes exactly what stepping the LSTM one step at a time does."""
+"""The sequence path of ResettableLSTM computes exactly what stepping the LSTM one step at a time does."""
 
-import pytest
 import torch
-from torch import nn
 
-from conftest import assert_acting_equals_training
-from envs.nets import MaskedLSTMRecurrence, RecurrentCategoricalActorCritic, ResettableLSTM
+from envs.nets import ResettableLSTM
 
 
 def step_by_step(lstm, x, state, done, num_copies):
@@ -73,56 +70,6 @@ def test_reset_steps_reset_exactly_with_large_weights_and_states():
     assert grad[:5, 0].abs().max() == 0 and grad[5:, 0].abs().max() > 0 and grad[:, 1:].abs().max() == 0
 
 
-class SmallNet(RecurrentCategoricalActorCritic):
-    def __init__(self):
-        super().__init__()
-        self.lstm = ResettableLSTM(5, 6)
-        self.actor = nn.Sequential(nn.Linear(6, 32), nn.Tanh(), nn.Linear(32, 3))
-        self.critic = nn.Sequential(nn.Linear(6, 32), nn.Tanh(), nn.Linear(32, 1))
-
-    def features(self, obs):
-        return obs["x"]
-
-
-def test_acting_step_equals_the_training_step():
-    """Without gradient a rollout step runs on derived weights (transposed LSTM weights in the gate order
-    i, f, o, g, fused heads); it computes what torch's LSTM cell and the heads compute, with and
-    without copy 1's state reset, and the derived weights follow an optimizer step and a load_state_dict."""
-    torch.manual_seed(7)
-    net = SmallNet()
-    obs, done = {"x": torch.randn(4, 5)}, torch.tensor([False, True, False, False])
-    state = (torch.randn(1, 4, 6), torch.randn(1, 4, 6))
-    optimizer = torch.optim.Adam(net.parameters(), lr=0.1)
-    for change in ("none", "optimizer step", "load_state_dict"):
-        if change == "optimizer step":
-            net.get_action_and_value(obs, state, done)[3].sum().backward()
-            optimizer.step()
-        elif change == "load_state_dict":
-            net.load_state_dict(SmallNet().state_dict())
-        for starts in (done, torch.zeros(4, dtype=torch.bool)):
-            assert_acting_equals_training(net, obs, state, starts, atol=1e-6)
-
-
-def test_fused_heads_equal_the_actor_and_critic_modules():
-    """get_action_and_value runs the heads as two fused matmuls; its log-probabilities, entropies, values
-    and their gradients equal those of the actor and critic modules (what dist_and_value uses)."""
-    torch.manual_seed(8)
-    net = SmallNet()
-    obs, done = {"x": torch.randn(6, 5)}, torch.zeros(6)
-    state, action = net.initial_state(6), torch.tensor([0, 1, 2, 2, 1, 0])
-    _, logprob, entropy, value, _ = net.get_action_and_value(obs, state, done, action)
-    dist, module_value = net.dist_and_value(obs, state, done)
-    expected = (dist.log_prob(action), dist.entropy(), module_value)
-    for got, want in zip((logprob, entropy, value), expected):
-        assert torch.allclose(got, want, atol=1e-6)
-    weights = torch.randn(3, 6)
-    params = list(net.actor.parameters()) + list(net.critic.parameters())
-    got = torch.autograd.grad(sum((w * x).sum() for w, x in zip(weights, (logprob, entropy, value))), params)
-    want = torch.autograd.grad(sum((w * x).sum() for w, x in zip(weights, expected)), params)
-    for a, b in zip(got, want):
-        assert torch.allclose(a, b, atol=1e-6)
-
-
 def test_reset_zeroes_state():
     torch.manual_seed(2)
     lstm = ResettableLSTM(3, 4)
@@ -135,10 +82,9 @@ def test_reset_zeroes_state():
     assert not torch.allclose(out_reset, out_carry)
 
 
-@pytest.mark.parametrize("project_inputs_first", [False, True])
-def test_sequence_path_gradients_reach_the_initial_state_and_inputs(project_inputs_first):
+def test_sequence_path_gradients_reach_the_initial_state_and_inputs():
     torch.manual_seed(3)
-    lstm = ResettableLSTM(9, 12, project_inputs_first=project_inputs_first)
+    lstm = ResettableLSTM(9, 12)
     steps, copies = 15, 3
     x = torch.randn(steps * copies, 9, requires_grad=True)
     done = (torch.rand(steps * copies) < 0.2).float()
@@ -152,48 +98,3 @@ def test_sequence_path_gradients_reach_the_initial_state_and_inputs(project_inpu
     for a, b in zip(grads_fast, grads_slow):
         assert torch.allclose(a, b, atol=1e-5)
     assert grads_fast[1][0, 1].abs().max() == 0 and grads_fast[1][0, 0].abs().max() > 0
-
-
-def test_masked_recurrence_passes_gradcheck():
-    torch.manual_seed(4)
-    steps, copies, hidden = 6, 2, 3
-    projected = torch.randn(steps, copies, 4 * hidden, dtype=torch.float64, requires_grad=True)
-    weight_hh = torch.randn(4 * hidden, hidden, dtype=torch.float64, requires_grad=True)
-    h0 = torch.randn(copies, hidden, dtype=torch.float64, requires_grad=True)
-    c0 = torch.randn(copies, hidden, dtype=torch.float64, requires_grad=True)
-    keep = torch.ones(steps, copies, 1, dtype=torch.float64)
-    keep[2, 0] = keep[4, 1] = 0.0
-    assert torch.autograd.gradcheck(MaskedLSTMRecurrence.apply, (projected, weight_hh, h0, c0, keep))
-
-
-class FixedPolicy(RecurrentCategoricalActorCritic):
-    """A recurrent net whose policy is the same categorical distribution for every input: its heads'
-    weights are 0 and the actor's output bias is the logits."""
-
-    def __init__(self, logits: torch.Tensor):
-        super().__init__()
-        self.lstm = ResettableLSTM(1, 2)
-        self.actor = nn.Sequential(nn.Linear(2, 32), nn.Tanh(), nn.Linear(32, len(logits)))
-        self.critic = nn.Sequential(nn.Linear(2, 32), nn.Tanh(), nn.Linear(32, 1))
-        for param in self.parameters():
-            nn.init.zeros_(param)
-        with torch.no_grad():
-            self.actor[2].bias.copy_(logits)
-
-    def features(self, obs):
-        return obs["x"]
-
-
-def test_sampled_actions_follow_the_policy():
-    torch.manual_seed(5)
-    probs = torch.tensor([0.5, 0.0, 0.3, 0.2, 0.0])
-    net = FixedPolicy(torch.log(probs.clamp(min=1e-12)))
-    n = 200_000
-    with torch.no_grad():
-        action, logprob, entropy, _, _ = net.get_action_and_value({"x": torch.zeros(n, 1)}, net.initial_state(n), torch.ones(n))
-    counts = torch.bincount(action, minlength=5).float()
-    assert counts[1] == 0 and counts[4] == 0  # actions of probability 0 (up to 1e-12) never drawn
-    tolerance = 4 * torch.sqrt(probs * (1 - probs) / n)  # 4 standard errors
-    assert torch.all((counts / n - probs).abs() <= tolerance + 1e-9)
-    assert torch.allclose(logprob, torch.log(probs.clamp(min=1e-12))[action])
-    assert torch.allclose(entropy, torch.full((n,), -(probs[probs > 0] * probs[probs > 0].log()).sum().item()), atol=1e-5)

@@ -213,7 +213,7 @@ def test_cloning_kl_uses_the_targets_recurrent_state_on_the_cloners_observations
 
 def bc_setup(lr=1e-2):
     """A tiny paired_bc configuration and one protagonist rollout on random levels."""
-    args = paired_bc.resolve_args(paired_bc.Args(env="maze", num_envs=4, num_steps=32, learning_rate=lr))
+    args = paired_bc.resolve_args(paired_bc.paper_args(env="maze", num_envs=4, num_steps=32, learning_rate=lr))
     env = MazeEnv("maze", args.num_envs, 0)
     levels = env.random_levels(args.num_envs, np.random.default_rng(0))
     agent = student(0)
@@ -242,7 +242,7 @@ def test_ppo_update_with_clone_target_moves_the_cloner_toward_the_target():
         np.random.seed(0)
         torch.manual_seed(0)
         stats = paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args.update_epochs, args.num_minibatches, args, 1, "cpu",
-                                     clone_target=clone_target, kl_coef=1.0)
+                                     clone_target=clone_target, bc_coef=1.0)
         results[name] = (stats, kl_on(storage, target, agent, args.num_envs))
     kl_start = kl_on(storage, target, start, args.num_envs)
     (cloning_stats, kl_cloning), (plain_stats, kl_plain) = results["cloning"], results["plain"]
@@ -263,7 +263,7 @@ def test_ppo_update_kl_coef_zero_is_plain_ppo():
         optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
         np.random.seed(0)
         paired_bc.ppo_update(agent, optimizer, storage, advantages, returns, args.student_ent_coef, args.update_epochs, args.num_minibatches, args, 1, "cpu",
-                             clone_target=clone_target, kl_coef=0.0)
+                             clone_target=clone_target, bc_coef=0.0)
         weights.append(agent.state_dict())
     assert all(torch.allclose(weights[0][k], weights[1][k], atol=1e-6) for k in weights[0])
 
@@ -280,7 +280,7 @@ def metrics_of(cwd):
 
 
 def test_cloning_on_every_kth_update_protagonist_only_unless_bidirectional(tmp_path):
-    tiny = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "512", "--kl-interval", "2",
+    tiny = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "512", "--bc-interval", "2",
             "--teacher-conv-channels", "4", "--eval-episodes", "1", "--eval-interval", "100", "--levels-interval", "100",
             "--checkpoint-interval", "100"]
     flags = {"uni": [], "bi": ["--bidirectional"]}
@@ -306,8 +306,8 @@ def test_cloning_on_every_kth_update_protagonist_only_unless_bidirectional(tmp_p
 # Bad input and the paper's defaults
 # ---------------------------------------------------------------------------------------------------
 BAD = [
-    (paired_bc, dict(kl_coef=-0.1)),
-    (paired_bc, dict(kl_interval=0)),
+    (paired_bc, dict(bc_coef=-0.1)),
+    (paired_bc, dict(bc_interval=0)),
     (paired, dict(student_ent_coef=-0.01)),
     (paired, dict(teacher_ent_coef=-0.01)),
     (paired_hient, dict(student_ent_coef=-0.01)),
@@ -325,17 +325,18 @@ BAD = [
 @pytest.mark.parametrize("module, bad", BAD, ids=[f"{m.__name__}-{'-'.join(b)}" for m, b in BAD])
 def test_bad_arguments_exit_with_status_2(module, bad):
     with pytest.raises(SystemExit) as exit_info:
-        module.resolve_args(module.Args(**bad))
+        make = module.Args if "env" in bad else module.paper_args  # an unknown env has no paper values
+        module.resolve_args(make(**bad))
     assert exit_info.value.code == 2
 
 
 BAD_INPUT = [
-    ("paired_bc.py", ["--kl-coef", "-1"], "--kl-coef"),
-    ("paired_bc.py", ["--kl-interval", "0"], "--kl-interval"),
+    ("paired_bc.py", ["--bc-coef", "-1"], "--bc-coef"),
+    ("paired_bc.py", ["--bc-interval", "0"], "--bc-interval"),
     ("paired_hient.py", ["--teacher-ent-coef", "-0.5"], "entropy"),
     ("paired.py", ["--student-ent-coef", "-0.5"], "entropy"),
     ("paired.py", ["--num-envs", "30", "--num-minibatches", "4"], "does not divide"),
-    ("paired_bc.py", ["--env", "mars"], "unknown --env"),
+    ("paired_bc.py", ["--env", "mars"], "invalid choice 'mars' for argument '--env'"),
     ("paired.py", ["--resume", "not-a-run"], "not a run directory"),
 ]
 
@@ -364,11 +365,11 @@ def test_bad_input_is_one_error_line_status_2_nothing_written(bad_input_runs, ca
     (paired, "maze25", dict(student_ent_coef=0.0, teacher_ent_coef=0.0)),
     (paired_hient, "maze", dict(student_ent_coef=0.005, teacher_ent_coef=0.05)),
     (paired_hient, "maze25", dict(student_ent_coef=0.005, teacher_ent_coef=0.01)),
-    (paired_bc, "maze", dict(kl_coef=0.01, kl_interval=5, student_ent_coef=0.005, teacher_ent_coef=0.005)),
-    (paired_bc, "maze25", dict(kl_coef=0.1, kl_interval=25, student_ent_coef=0.005, teacher_ent_coef=0.05)),
+    (paired_bc, "maze", dict(bc_coef=0.01, bc_interval=5, student_ent_coef=0.005, teacher_ent_coef=0.005)),
+    (paired_bc, "maze25", dict(bc_coef=0.1, bc_interval=25, student_ent_coef=0.005, teacher_ent_coef=0.05)),
 ])
 def test_paper_defaults_per_script_and_env(module, env, expected):
-    args = module.resolve_args(module.Args(env=env))
+    args = module.resolve_args(module.paper_args(env=env))
     assert {k: getattr(args, k) for k in expected} == expected
     # The shared PPO settings (SPEC 4) are the same for every script and env.
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda, args.update_epochs,
@@ -380,10 +381,10 @@ def test_paper_defaults_per_script_and_env(module, env, expected):
 def test_walker_teacher_takes_the_references_ppo_settings(module):
     """The reference's walker PAIRED teacher: 8 epochs, 4 minibatches, entropy 0.01 (students: 5 and 32);
     the maze teacher trains as its students (5 epochs, 1 minibatch); value loss smooth L1 on the walker."""
-    args = module.resolve_args(module.Args(env="walker"))
+    args = module.resolve_args(module.paper_args(env="walker"))
     assert (args.teacher_update_epochs, args.teacher_num_minibatches, args.teacher_ent_coef) == (8, 4, 0.01)
     assert (args.update_epochs, args.num_minibatches, args.value_loss) == (5, 32, "huber")
-    args = module.resolve_args(module.Args(env="maze"))
+    args = module.resolve_args(module.paper_args(env="maze"))
     assert (args.teacher_update_epochs, args.teacher_num_minibatches) == (5, 1)
 
 
@@ -400,7 +401,7 @@ def test_teacher_update_uses_its_own_epochs_and_minibatches():
 
 
 def test_explicit_options_override_the_paper_defaults():
-    args = paired_bc.resolve_args(paired_bc.Args(env="maze25", kl_interval=3, kl_coef=0.0, teacher_ent_coef=0.0))
-    assert (args.kl_interval, args.kl_coef, args.teacher_ent_coef, args.student_ent_coef) == (3, 0.0, 0.0, 0.005)
-    args = paired_hient.resolve_args(paired_hient.Args(env="maze", student_ent_coef=0.0))
+    args = paired_bc.resolve_args(paired_bc.paper_args(env="maze25", bc_interval=3, bc_coef=0.0, teacher_ent_coef=0.0))
+    assert (args.bc_interval, args.bc_coef, args.teacher_ent_coef, args.student_ent_coef) == (3, 0.0, 0.0, 0.005)
+    args = paired_hient.resolve_args(paired_hient.paper_args(env="maze", student_ent_coef=0.0))
     assert (args.student_ent_coef, args.teacher_ent_coef) == (0.0, 0.05)

@@ -91,7 +91,7 @@ def test_sampling_follows_weights_and_refreshes_staleness():
 
 
 def test_replay_decision():
-    args = plr.resolve_args(plr.Args(level_buffer_size=100, replay_prob=0.5))
+    args = plr.resolve_args(plr.paper_args(level_buffer_size=100, replay_prob=0.5))
     rng = np.random.default_rng(0)
     assert not any(plr.decide_replay(49, args, rng) for _ in range(100))  # below half full: never
     decisions = [plr.decide_replay(50, args, rng) for _ in range(2000)]
@@ -112,5 +112,5 @@ def test_buffer_state_round_trip():
 @pytest.mark.parametrize("bad", [dict(num_envs=30, num_minibatches=4), dict(replay_prob=1.5), dict(temperature=0.0)])
 def test_bad_arguments_exit_with_status_2(bad):
     with pytest.raises(SystemExit) as exit_info:
-        plr.resolve_args(plr.Args(**bad))
+        plr.resolve_args(plr.paper_args(**bad))
     assert exit_info.value.code == 2

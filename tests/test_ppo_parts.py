@@ -34,7 +34,7 @@ def test_return_normalizer_clips_at_ten():
 
 
 def test_feed_forward_minibatches_cover_every_step_once_in_random_order():
-    args = plr.Args(num_envs=3, num_steps=4, num_minibatches=2)
+    args = plr.paper_args(num_envs=3, num_steps=4, num_minibatches=2)
     np.random.seed(0)
     batches = list(plr.minibatch_rows(False, args, "cpu"))
     assert [len(b) for b in batches] == [6, 6]
@@ -56,7 +56,7 @@ def test_recurrent_minibatches_hold_whole_rollouts_time_major():
 
 def test_a_single_minibatch_is_the_whole_batch_as_a_view():
     storage = torch.arange(24.0).view(4, 3, 2)  # [T, N, features]
-    for batches in (list(plr.minibatch_rows(True, plr.Args(num_envs=3, num_steps=4, num_minibatches=1), "cpu")),
+    for batches in (list(plr.minibatch_rows(True, plr.paper_args(num_envs=3, num_steps=4, num_minibatches=1), "cpu")),
                     list(paired.minibatch_rows(False, num_steps=4, n=3, num_minibatches=1, device="cpu"))):
         assert len(batches) == 1
         flat = storage.reshape(12, 2)[batches[0]]
@@ -65,7 +65,7 @@ def test_a_single_minibatch_is_the_whole_batch_as_a_view():
 
 def test_value_losses_on_a_worked_example():
     value, old, ret = torch.tensor([1.0, 0.0]), torch.tensor([0.5, 0.0]), torch.tensor([0.0, 3.0])
-    args = plr.Args(clip_coef=0.2, value_loss="mse")
+    args = plr.paper_args(clip_coef=0.2, value_loss="mse")
     assert plr.value_loss_fn(value, old, ret, args).item() == pytest.approx(0.5 * (1.0 + 9.0) / 2)
     args.value_loss = "huber"  # 0.5 x^2 below 1, |x| - 0.5 above
     assert plr.value_loss_fn(value, old, ret, args).item() == pytest.approx((0.5 + 2.5) / 2)

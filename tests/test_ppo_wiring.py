@@ -35,7 +35,7 @@ def names(modules):
 def script_args(script, **values):
     """The script's Args, given those of `values` it has (the PAIRED scripts name some differently)."""
     fields = {field.name for field in dataclasses.fields(script.Args)}
-    return script.Args(**{k: v for k, v in values.items() if k in fields})
+    return script.paper_args(**{k: v for k, v in values.items() if k in fields})
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -92,7 +92,7 @@ def test_rollout_gae_hand_worked_with_an_episode_end_and_a_bootstrap(script):
     PLR's score: copy 0 its completed episode, mean(0.31, 0.5) = 0.405 (the cut-off one is not scored);
     copy 1 mean(0.447952, 0.6916, 1.03, 1.5) = 0.917388."""
     env = ScriptedEnv()
-    args = script.Args(num_envs=2, num_steps=4, gamma=0.9, gae_lambda=0.8)
+    args = script.paper_args(num_envs=2, num_steps=4, gamma=0.9, gae_lambda=0.8)
     storage = script.Rollout(env, args.num_steps, args.num_envs, "cpu")
     advantages, returns, episode_returns = script.collect_rollout(ConstantValueAgent(), env, None, storage, args, "cpu")
     expected = torch.tensor([[0.31, 0.447952], [0.5, 0.6916], [-0.086, 1.03], [-0.05, 1.5]])
@@ -207,7 +207,7 @@ def test_teacher_returns_hand_worked(script):
       d0 = 0.9 * 0.2 - 0.1 = 0.08; A2 = 0.2, A1 = 0.16 + 0.45 * 0.2 = 0.25, A0 = 0.08 + 0.45 * 0.25 = 0.1925.
     Level 1, values (0.3, 0, 0.5): d = (-0.3, 0.45, -0.5); A2 = -0.5, A1 = 0.225, A0 = -0.19875."""
     storage = teacher_storage(script)
-    args = script.Args(gamma=0.9, gae_lambda=0.5)
+    args = script.paper_args(gamma=0.9, gae_lambda=0.5)
     advantages, returns = script.teacher_returns(np.array([0.6, 0.0]), storage, None, args, "cpu")
     expected = torch.tensor([[0.1925, -0.19875], [0.25, 0.225], [0.2, -0.5]])
     assert torch.allclose(advantages, expected, atol=1e-6)
@@ -224,7 +224,7 @@ def test_teacher_returns_divide_the_regret_by_the_running_std(script):
     = 0.3 and 0. Level 0: d2 = 0.3 - 0.4 = -0.1, A1 = 0.16 - 0.45 * 0.1 = 0.115, A0 = 0.08 + 0.45 *
     0.115 = 0.13175; level 1 as without normalizer."""
     storage = teacher_storage(script)
-    args = script.Args(gamma=0.9, gae_lambda=0.5)
+    args = script.paper_args(gamma=0.9, gae_lambda=0.5)
     normalizer = script.ReturnNormalizer(2, args.gamma)
     normalizer.load_state_dict({"mean": 0.0, "var": 4.0, "count": 1e12})
     advantages, _ = script.teacher_returns(np.array([0.6, 0.0]), storage, normalizer, args, "cpu")

@@ -26,9 +26,9 @@ SCRIPTS = {
     "accel": ("accel.py", ["--level-buffer-size", "2", "--total-timesteps", "96"], "ACCEL on carracing"),
     "paired": ("paired.py", ["--total-timesteps", "32"], "PAIRED on carracing"),
     "paired_hient": ("paired_hient.py", ["--total-timesteps", "32"], "PAIRED+HiEnt on carracing"),
-    "paired_bc": ("paired_bc.py", ["--bidirectional", "--kl-interval", "1", "--total-timesteps", "32"], "PAIRED+BiBC on carracing"),
-    "paired_evo": ("paired_evo.py", ["--level-buffer-size", "2", "--total-timesteps", "96", "--kl-coef", "0.1",
-                                     "--kl-interval", "1"], "PAIRED+Evo+UniBC on carracing"),
+    "paired_bc": ("paired_bc.py", ["--bidirectional", "--bc-interval", "1", "--total-timesteps", "32"], "PAIRED+BiBC on carracing"),
+    "paired_evo": ("paired_evo.py", ["--level-buffer-size", "2", "--total-timesteps", "96", "--bc-coef", "0.1",
+                                     "--bc-interval", "1"], "PAIRED+Evo+UniBC on carracing"),
 }
 
 

@@ -67,7 +67,7 @@ def test_maze25_runs(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--env", "mars"], "unknown --env"),
+    (["--env", "mars"], "invalid choice 'mars' for argument '--env'"),
     (["--num-envs", "30", "--num-minibatches", "4"], "does not divide"),
     (["--resume", "not-a-run"], "not a run directory"),
 ])

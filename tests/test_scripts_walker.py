@@ -13,7 +13,8 @@ import sys
 import numpy as np
 import pytest
 
-from envs.walker import WalkerEnv, WalkerLevels
+from envs.walker import WalkerEnv
+from envs.walker_terrain import WalkerLevels
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
@@ -25,9 +26,9 @@ SCRIPTS = {
     "accel": ("accel.py", ["--level-buffer-size", "2", "--total-timesteps", "128"], "ACCEL on walker"),
     "paired": ("paired.py", ["--total-timesteps", "32"], "PAIRED on walker"),
     "paired_hient": ("paired_hient.py", ["--total-timesteps", "32"], "PAIRED+HiEnt on walker"),
-    "paired_bc": ("paired_bc.py", ["--bidirectional", "--kl-interval", "1", "--total-timesteps", "32"], "PAIRED+BiBC on walker"),
-    "paired_evo": ("paired_evo.py", ["--level-buffer-size", "2", "--total-timesteps", "128", "--kl-coef", "0.1",
-                                     "--kl-interval", "1", "--bidirectional"], "PAIRED+Evo+BiBC on walker"),
+    "paired_bc": ("paired_bc.py", ["--bidirectional", "--bc-interval", "1", "--total-timesteps", "32"], "PAIRED+BiBC on walker"),
+    "paired_evo": ("paired_evo.py", ["--level-buffer-size", "2", "--total-timesteps", "128", "--bc-coef", "0.1",
+                                     "--bc-interval", "1", "--bidirectional"], "PAIRED+Evo+BiBC on walker"),
 }
 
 
@@ -60,7 +61,7 @@ def test_accel_walker_defaults_are_the_papers(tmp_path):
     3 edits; PPO 16 x 2000, 5 epochs, 32 minibatches, lr 3e-4, gamma 0.99, lambda 0.9, entropy 1e-3."""
     import accel
 
-    args = accel.resolve_args(accel.Args(env="walker"))
+    args = accel.resolve_args(accel.paper_args(env="walker"))
     assert (args.generator, args.replay_prob, args.level_buffer_size, args.temperature, args.staleness_coef,
             args.num_edits) == ("easy", 0.9, 1000, 0.1, 0.5, 3)
     assert (args.num_envs, args.num_steps, args.update_epochs, args.num_minibatches, args.learning_rate, args.gamma,
@@ -68,7 +69,7 @@ def test_accel_walker_defaults_are_the_papers(tmp_path):
 
 
 def test_parameters_outside_their_ranges_are_refused():
-    env = WalkerEnv(1, 0, num_workers=0)
+    env = WalkerEnv(1, 0)
     levels = env.random_levels(1, np.random.default_rng(0))
     bad = WalkerLevels(levels.params.copy(), levels.seed.copy(), levels.course.copy())
     bad.params[0, 0] = 11.0  # roughness beyond its full range [0, 10]

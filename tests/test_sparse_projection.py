@@ -1,6 +1,6 @@
-"""The maze teacher's sparse input projection (envs/sparse_projection.py) equals its plain dense path:
-outputs and every gradient on teacher trajectories of both maze settings, acting step by step, generic
-sequences, a float64 gradcheck, and three updates of paired.py."""
+"""The maze teacher's fast path, its sparse input projection (envs/sparse_projection.py), equals the plain
+teacher: outputs and every gradient on teacher trajectories of both maze settings, acting step by step,
+generic sequences, a float64 gradcheck, and three updates of paired.py."""
 
 import concurrent.futures
 import csv
@@ -14,7 +14,6 @@ import torch
 from torch import nn
 
 from envs.maze import CELL_ENCODING, MazeTeacher, MazeTeacherMDP, empty_grid
-from envs.nets import RecurrentCategoricalActorCritic
 from envs.sparse_projection import MAX_CHANGED_FRACTION, sparse_gate_inputs
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -24,8 +23,17 @@ SETTINGS = {"maze": (60, True), "maze25": (25, False)}  # (block budget, uniform
 @pytest.fixture(autouse=True)
 def cheap_init(monkeypatch):
     """The paper's teacher has ~22M LSTM input weights; their orthogonal init takes seconds and is not
-    what these tests check."""
+    what these tests check. (And the fast paths are on.)"""
     monkeypatch.setattr(nn.init, "orthogonal_", lambda tensor, gain=1.0: nn.init.normal_(tensor, 0.0, 0.05 * gain))
+    monkeypatch.delenv("CLEANUED_PLAIN_NETS", raising=False)
+
+
+def run(plain: bool, function, *args):
+    """function(*args) on the plain nets (CLEANUED_PLAIN_NETS=1) or with the fast paths."""
+    with pytest.MonkeyPatch.context() as patch:
+        if plain:
+            patch.setenv("CLEANUED_PLAIN_NETS", "1")
+        return function(*args)
 
 
 def teacher_episode(budget: int, uniform: bool, num_copies: int, seed: int, size: int = 15):
@@ -70,10 +78,9 @@ def assert_episode_has_the_cases(batch, mdp, setting, num_copies):
     assert not mdp.walls[2, mdp.goal[2, 1], mdp.goal[2, 0]]
 
 
-def losses_and_grads(net, batch, num_copies, done, sparse: bool, weights):
+def losses_and_grads(net, batch, num_copies, done, weights):
     """The training path's logits and values, and every gradient (parameters and the noise input) of a
     random linear function of them."""
-    net.sparse_inputs = sparse
     net.zero_grad()
     obs = {**batch, "noise": batch["noise"].clone().requires_grad_()}
     dist, value = net.dist_and_value(obs, net.initial_state(num_copies), done)
@@ -84,15 +91,15 @@ def losses_and_grads(net, batch, num_copies, done, sparse: bool, weights):
 
 
 def assert_matches_dense(net, batch, num_copies, done=None):
-    """The sparse path's outputs and gradients equal the dense path's; `done` marks episode starts (by
-    default: the first step of every copy)."""
+    """The fast (sparse) path's outputs and gradients equal the plain net's, which computes the dense
+    features; `done` marks episode starts (by default: the first step of every copy)."""
     if done is None:
         done = torch.zeros(len(batch["time"]))
         done[:num_copies] = 1.0
     torch.manual_seed(5)
     weights = (torch.randn(len(batch["time"]), net.actor[-1].out_features), torch.randn(len(batch["time"])))
-    sparse = losses_and_grads(net, batch, num_copies, done, True, weights)
-    dense = losses_and_grads(net, batch, num_copies, done, False, weights)
+    sparse = run(False, losses_and_grads, net, batch, num_copies, done, weights)
+    dense = run(True, losses_and_grads, net, batch, num_copies, done, weights)
     for got, expected in zip(sparse[:2], dense[:2]):
         assert torch.allclose(got, expected, rtol=1e-4, atol=1e-5)
     assert sparse[2].keys() == dense[2].keys()
@@ -103,9 +110,10 @@ def assert_matches_dense(net, batch, num_copies, done=None):
 
 
 def sparse_path_taken(net, batch, num_copies) -> bool:
+    """Whether the fast path projects `batch` sparsely (as it does, from the batch's first image)."""
     lstm = net.lstm.lstm
     with torch.no_grad():
-        gates = sparse_gate_inputs(net.conv[0], net.image_scale, net.empty_image, batch["image"], net.dense_features(batch),
+        gates = sparse_gate_inputs(net.conv[0], net.image_scale, batch["image"][0], batch["image"], net.dense_features(batch),
                                    lstm.weight_ih_l0, lstm.bias_ih_l0, num_copies)
     return gates is not None
 
@@ -150,13 +158,17 @@ def test_training_path_equals_dense_on_generic_sequences():
     assert_matches_dense(net, random_images, num_copies)
 
 
+def acting_step(net, obs, state):
+    torch.manual_seed(9)
+    with torch.no_grad():
+        return net.get_action_and_value(obs, state, torch.zeros(len(obs["time"])))
+
+
 @pytest.mark.parametrize("setting", ["maze", "maze25"])
 def test_acting_path_equals_dense(setting):
-    """Acting step by step (the running W f(I) per copy) gives the dense acting path's gate inputs over two
-    episodes in a row, a step with new random images (the dense fallback), a smaller batch, and after a
-    weight change; and the training path's outputs for the same step."""
-    from conftest import assert_acting_equals_training
-
+    """Acting step by step (the running W f(I) per copy) gives the plain teacher's action, log-probability,
+    value and new state from the same given state, over two episodes in a row, a step with new random
+    images (the dense fallback), a smaller batch, and after a weight change."""
     torch.manual_seed(2)
     num_copies = 5
     net = MazeTeacher(SETTINGS[setting][0] + 2, conv_channels=128)
@@ -167,27 +179,27 @@ def test_acting_path_equals_dense(setting):
         return [{k: v[t * num_copies : t * num_copies + copies] for k, v in episode.items()} for t in range(len(episode["time"]) // num_copies)]
 
     steps = split(episodes[0], num_copies) + split(episodes[1], num_copies) + split(random_images, num_copies) + split(episodes[1], 2)
+    hidden = net.lstm.hidden_size
+    states = {n: (torch.randn(1, n, hidden), torch.randn(1, n, hidden)) for n in (2, num_copies)}
 
     def check(steps):
-        with torch.no_grad():
-            weights = net.acting_cache.get([net], net.acting_weights)
-            for step in steps:
-                dense = RecurrentCategoricalActorCritic.acting_gate_inputs(net, step, weights)  # from `features`
-                assert torch.allclose(net.acting_gate_inputs(step, weights), dense, rtol=1e-4, atol=1e-4)
+        for step in steps:
+            state = states[len(step["time"])]
+            fast, plain = run(False, acting_step, net, step, state), run(True, acting_step, net, step, state)
+            assert torch.equal(fast[0], plain[0])
+            for got, expected in zip((*fast[1:4], *fast[4]), (*plain[1:4], *plain[4])):
+                assert torch.allclose(got, expected, rtol=1e-4, atol=1e-5)
 
     check(steps)
-    # An episode's first image is the empty grid: its copies restart exactly from W f(I_ref), rounding
-    # from the earlier episodes gone.
-    running = net.acting_cache.get([net], net.acting_weights)["running_conv_gates"]
-    with torch.no_grad():
-        for step in split(episodes[1], num_copies)[:20] + split(episodes[0], num_copies)[:1]:
-            net.acting_gate_inputs(step, net.acting_cache.get([net], net.acting_weights))
+    # An episode's first image is the empty grid, the reference: its copies restart exactly from
+    # W f(I_ref), rounding from the earlier episodes gone.
+    for step in split(episodes[1], num_copies)[:20] + split(episodes[0], num_copies)[:1]:
+        acting_step(net, step, states[num_copies])
+    running = net.fast_path_state.derived.value["running_conv_gates"]
     assert torch.equal(running.gates, running.start_gates.expand(num_copies, -1))
     with torch.no_grad():
         net.lstm.lstm.weight_ih_l0.mul_(1.5)
     check(steps[: len(steps) // 3])
-    state = (torch.randn(1, num_copies, 256), torch.randn(1, num_copies, 256))
-    assert_acting_equals_training(net, steps[7], state, torch.zeros(num_copies), atol=1e-5)
 
 
 class SparseGates(nn.Module):
@@ -231,16 +243,16 @@ def test_gradcheck_float64_small_grid():
         assert torch.allclose(projection(*inputs), dense, atol=1e-10)
 
 
-def test_paired_updates_equal_dense_teacher(tmp_path):
-    """Three updates of paired.py with the paper's teacher log the same metrics with the sparse projection
-    as with CLEANUED_DENSE_TEACHER=1 (timings aside)."""
+def test_paired_updates_equal_plain_nets(tmp_path):
+    """Three updates of paired.py with the paper's teacher log the same metrics with the fast paths as
+    with CLEANUED_PLAIN_NETS=1 (timings aside)."""
     args = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "384", "--eval-interval", "1000",
             "--eval-episodes", "1", "--levels-interval", "1000", "--checkpoint-interval", "1000"]
 
-    def run(mode):
+    def run_script(mode):
         cwd = tmp_path / mode
         cwd.mkdir()
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_DENSE_TEACHER": "1" if mode == "dense" else "0"}
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_PLAIN_NETS": "1" if mode == "plain" else "0"}
         result = subprocess.run([sys.executable, os.path.join(ROOT, "paired.py"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
         assert result.returncode == 0, result.stderr
         (run_dir,) = (cwd / "runs").iterdir()
@@ -248,9 +260,9 @@ def test_paired_updates_equal_dense_teacher(tmp_path):
             return list(csv.DictReader(f))
 
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        sparse, dense = pool.map(run, ["sparse", "dense"])
-    assert len(sparse) == len(dense) == 3
-    for got, expected in zip(sparse, dense):
+        fast, plain = pool.map(run_script, ["fast", "plain"])
+    assert len(fast) == len(plain) == 3
+    for got, expected in zip(fast, plain):
         for column, value in expected.items():
             if column == "sps" or column.startswith("time_"):
                 continue

@@ -15,8 +15,8 @@ TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timest
 
 
 @pytest.mark.parametrize("script, extra, scalar", [
-    ("plr.py", ["--replay-prob", "0"], "charts/mean_return"),  # DR: trains at every update
-    ("paired.py", ["--teacher-conv-channels", "4"], "charts/protagonist_return"),
+    ("plr.py", ["--replay-prob", "0"], "charts/walls"),  # DR: trains at every update
+    ("paired.py", ["--teacher-conv-channels", "4"], "charts/regret"),
 ])
 def test_runs_write_tensorboard_events(tmp_path, script, extra, scalar):
     result = subprocess.run([sys.executable, os.path.join(ROOT, script), *TINY, *extra], cwd=tmp_path, capture_output=True,

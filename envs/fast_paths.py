@@ -1,0 +1,286 @@
+"""Faster, exact ways to run the maze's two networks, derived from their plain definitions in envs/maze.py.
+
+`MazeStudent` and `MazeTeacher` are written plainly (nn.Conv2d, nn.Linear, an LSTM with episode resets,
+torch.distributions.Categorical): that is their definition, and what any modified net runs. This module
+is the only place that knows how to run them faster. Each class here serves one network class, which
+names it (`FastPath = ...` in its body); envs/nets.py uses it only for that exact class, so a subclass
+(a modified net) runs the plain path with no other change, and only while `recognises(net)` finds the
+modules the derivation relies on. With CLEANUED_PLAIN_NETS=1 in the environment every net runs plainly.
+tests/test_fast_paths.py checks each path against the plain net.
+
+**Acting** (a rollout step: no gradient, no given action) costs more in per-call overhead than in
+arithmetic at a batch of 32, so it runs on tensors derived from the parameters once per change of them
+(`DerivedWeights`): the LSTM's transposed weights with the gates ordered i, f, o, g (the three sigmoids
+side by side); the actor's and critic's layers fused into two matmuls; and the input layers, folded as
+far as they are linear. The student's conv over its 5x5 view is a linear map from 75 inputs to 144, so
+it becomes a [75, 144] matrix (found by running the conv on unit images), and its direction embedding
+times the LSTM's input weights plus the LSTM's biases a [4, 4H] table of gate inputs, one row per
+direction. The teacher's grid changes in at most one cell per step, so the conv features' share of its
+gates is carried from step to step and only the conv windows over a changed cell are recomputed
+(envs/sparse_projection.py); its time embedding becomes a table of gate inputs too. The action is drawn
+as the plain path's Categorical.sample draws it, with torch.multinomial on the same probabilities, so
+both paths draw the same actions from the same random stream.
+
+**Training** the teacher (a whole rollout, T > 1) computes the LSTM's input projection from the changed
+cells only (envs/sparse_projection.py), then the recurrence with `MaskedLSTMRecurrence`. The student
+trains on the plain path: at a training batch its conv costs what the folded matrix does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from envs.nets import ResettableLSTM
+from envs.sparse_projection import RunningConvGates, sparse_gate_inputs
+
+
+class DerivedWeights:
+    """Tensors computed from a net's parameters, rebuilt only after one of them changed. Every in-place
+    change of a parameter (an optimizer step, `load_state_dict`) bumps its version counter, and moving
+    it changes its storage. At a rollout step's small batch, rebuilding them at each call costs more
+    than the matmuls they feed. (The net's parameters are listed again only when one of its direct
+    children was replaced: listing them costs more than the rest of this check.)"""
+
+    def __init__(self):
+        self.children, self.params, self.key, self.value = None, None, None, None
+
+    def get(self, net: nn.Module, build, *extra_key):
+        children = tuple(net.children())
+        if children != self.children:
+            self.children, self.params = children, list(net.parameters())
+        key = [*extra_key, *((p.data_ptr(), p._version) for p in self.params)]
+        if key != self.key:
+            self.key, self.value = key, build()
+        return self.value
+
+
+def is_two_layer_tanh_head(head: nn.Module) -> bool:
+    return type(head) is nn.Sequential and [type(layer) for layer in head] == [nn.Linear, nn.Tanh, nn.Linear]
+
+
+def recurrent_parts_recognised(net: nn.Module) -> bool:
+    """The LSTM and the heads `lstm_and_head_weights` derives from: a ResettableLSTM, and the actor and
+    critic each Linear, Tanh, Linear."""
+    return type(net.lstm) is ResettableLSTM and is_two_layer_tanh_head(net.actor) and is_two_layer_tanh_head(net.critic)
+
+
+def lstm_and_head_weights(net: nn.Module) -> dict[str, torch.Tensor]:
+    """W_ih^T [F, 4H], W_hh^T [H, 4H] and b_ih + b_hh [4H], their gate columns reordered to i, f, o, g;
+    and the heads as two matmuls: the actor's and critic's first layers side by side, hidden -> [actor |
+    critic], then a block-diagonal matrix -> [logits | value] (its zeros add nothing)."""
+    lstm = net.lstm.lstm
+    order = torch.arange(4 * lstm.hidden_size, device=lstm.weight_ih_l0.device).view(4, -1)[[0, 1, 3, 2]].reshape(-1)
+    actor_in, actor_out, critic_in, critic_out = net.actor[0], net.actor[2], net.critic[0], net.critic[2]
+    heads = (torch.cat([actor_in.weight, critic_in.weight]).t().contiguous(), torch.cat([actor_in.bias, critic_in.bias]),
+             torch.block_diag(actor_out.weight, critic_out.weight).t().contiguous(), torch.cat([actor_out.bias, critic_out.bias]))
+    return {"lstm_input": lstm.weight_ih_l0.t().index_select(1, order), "lstm_recurrent": lstm.weight_hh_l0[order].t().contiguous(),
+            "lstm_bias": (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order], "heads": heads}
+
+
+def act_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
+    """The rest of an acting step from the input's share of the gates, W_ih x + b_ih + b_hh [N, 4H] in the
+    gate order of `lstm_and_head_weights` (it is overwritten): torch's LSTM cell in place, the fused
+    heads, and Categorical's sampling and maths. -> action, log-probability, entropy, value, new state."""
+    hidden_size = weights["lstm_recurrent"].shape[0]
+    reset = done.view(-1, 1).bool()
+    h, c = state[0][0], state[1][0]
+    # Zero the state of copies whose episode starts. On a CPU, most steps have none, and asking costs less
+    # than the fill; on a GPU the question would wait for the device, so the fill always runs there.
+    if reset.device.type != "cpu" or reset.any():
+        h, c = h.masked_fill(reset, 0.0), c.masked_fill(reset, 0.0)
+    gates = gate_inputs.addmm_(h, weights["lstm_recurrent"])
+    gates[:, : 3 * hidden_size].sigmoid_()
+    gates[:, 3 * hidden_size :].tanh_()
+    i, f, o, g = gates.chunk(4, 1)
+    c = torch.addcmul(f * c, i, g)
+    h = o * torch.tanh(c)
+    first, first_bias, second, second_bias = weights["heads"]
+    out = torch.addmm(second_bias, torch.addmm(first_bias, h, first).tanh_(), second)
+    logits, value = out[:, :-1], out[:, -1]
+    log_probs = logits - logits.logsumexp(-1, keepdim=True)  # Categorical(logits=...)'s normalized logits
+    probs = torch.softmax(log_probs, -1)  # and its probabilities, which its sample() draws from
+    action = torch.multinomial(probs, 1, True).squeeze(1)
+    entropy = -(probs * log_probs).sum(-1)
+    logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
+    return action, logprob, entropy, value, (h.unsqueeze(0), c.unsqueeze(0))
+
+
+class MazeStudentFastPath:
+    """Acting for envs.maze.MazeStudent on the folded weights described in the module's docstring."""
+
+    def __init__(self):
+        self.derived = DerivedWeights()
+
+    @staticmethod
+    def recognises(net: nn.Module) -> bool:
+        return type(net.conv) is nn.Conv2d and type(net.direction_embed) is nn.Linear and recurrent_parts_recognised(net)
+
+    def lstm_output(self, net, obs: dict, state, done):
+        """No faster training path: the plain one runs."""
+        return None
+
+    def act(self, net, obs: dict, state, done: torch.Tensor):
+        image = obs["image"]
+        weights = self.derived.get(net, lambda: self.derive(net, image.shape[1:]), image.shape)
+        view = torch.addmm(weights["view_bias"], image.reshape(len(image), -1).float(), weights["view_matrix"]).relu_()
+        gate_inputs = weights["direction_gates"].index_select(0, obs["direction"].long()).addmm_(view, weights["view_input"])
+        return act_from_gate_inputs(gate_inputs, state, done, weights)
+
+    @staticmethod
+    def derive(net, image_shape: torch.Size) -> dict[str, torch.Tensor]:
+        """The conv as a matrix on the raw image flattened as (y, x, channel) (the image scale folded in)
+        and its output for an all-zero image (the bias), both with the outputs flattened as `features`
+        flattens them; the LSTM input weights of the view's features; and the direction's gate inputs,
+        its embedding of each one-hot times its LSTM input weights plus the LSTM's biases."""
+        weights = lstm_and_head_weights(net)
+        pixels = math.prod(image_shape)
+        unit_images = torch.cat([torch.eye(pixels), torch.zeros(1, pixels)]).to(net.conv.weight).view(pixels + 1, *image_shape)
+        outputs = net.conv(unit_images.permute(0, 3, 1, 2) / net.image_scale).flatten(1)
+        view_bias = outputs[-1]
+        lstm_input = weights.pop("lstm_input")
+        view_size = len(view_bias)
+        directions = net.direction_embed(torch.eye(net.direction_embed.in_features, device=view_bias.device))
+        direction_gates = torch.addmm(weights.pop("lstm_bias"), directions, lstm_input[view_size:])
+        return {**weights, "view_matrix": outputs[:-1] - view_bias, "view_bias": view_bias,
+                "view_input": lstm_input[:view_size].contiguous(), "direction_gates": direction_gates}
+
+
+class MazeTeacherFastPath:
+    """Acting and training for envs.maze.MazeTeacher from the cells of the grid that changed (the module's
+    docstring). Its reference image, whose conv features' share of the gates is computed densely, is the
+    first image of the batch: every teacher episode starts from the same empty grid.
+
+    Both paths read W_ih^T's conv rows, so their first use stores the teacher's 22M W_ih transposed (the
+    same values and shape, strides (1, 4H)): the sparse products then read a view and return the
+    gradient in that layout, with no transposed copy of it in either direction."""
+
+    def __init__(self):
+        self.derived = DerivedWeights()
+
+    @staticmethod
+    def recognises(net: nn.Module) -> bool:
+        conv = net.conv
+        if type(conv) is not nn.Sequential or [type(layer) for layer in conv] != [nn.Conv2d, nn.ReLU, nn.Flatten]:
+            return False
+        conv = conv[0]
+        plain_window = conv.stride == (1, 1) and conv.padding == (0, 0) and conv.dilation == (1, 1) and conv.groups == 1
+        square_window = conv.kernel_size[0] == conv.kernel_size[1] and conv.bias is not None
+        return plain_window and square_window and type(net.time_embed) is nn.Linear and recurrent_parts_recognised(net)
+
+    @staticmethod
+    def store_input_weights_transposed(net) -> None:
+        weight_ih = net.lstm.lstm.weight_ih_l0
+        if weight_ih.stride(0) != 1:
+            weight_ih.data = weight_ih.data.t().contiguous().t()
+
+    def lstm_output(self, net, obs: dict, state, done: torch.Tensor):
+        """A training sequence (T > 1): the LSTM's output [T * N, H] and None (its final state is never
+        needed); None for one step, or if too many cells change for the sparse projection to pay."""
+        num_copies = state[0].shape[1]
+        images = obs["image"]
+        if len(images) == num_copies:
+            return None
+        self.store_input_weights_transposed(net)
+        lstm = net.lstm.lstm
+        projected = sparse_gate_inputs(net.conv[0], net.image_scale, images[0], images, net.dense_features(obs),
+                                       lstm.weight_ih_l0, lstm.bias_ih_l0 + lstm.bias_hh_l0, num_copies)
+        if projected is None:
+            return None
+        steps = len(images) // num_copies
+        keep = (1.0 - done.float()).view(steps, num_copies, 1)
+        h = MaskedLSTMRecurrence.apply(projected.view(steps, num_copies, -1), lstm.weight_hh_l0, state[0][0], state[1][0], keep)
+        return h.view(steps * num_copies, lstm.hidden_size), None
+
+    def act(self, net, obs: dict, state, done: torch.Tensor):
+        self.store_input_weights_transposed(net)
+        weights = self.derived.get(net, lambda: self.derive(net, obs["image"][0].clone()))  # a copy: the caller may reuse its buffer
+        gate_inputs = weights["running_conv_gates"](obs["image"])
+        gate_inputs.addmm_(obs["noise"].float(), weights["noise_input"]).add_(weights["time_gates"].index_select(0, obs["time"].long()))
+        return act_from_gate_inputs(gate_inputs, state, done, weights)
+
+    @staticmethod
+    def derive(net, reference: torch.Tensor) -> dict:
+        """The running conv gates (W f(I) per copy, on W_ih^T's conv rows as [C, P, 4H]); the time's gate
+        inputs, its embedding of each one-hot times its LSTM input weights plus the LSTM's biases
+        [num_steps, 4H]; and the noise's LSTM input weights."""
+        weights = lstm_and_head_weights(net)
+        lstm_input = weights.pop("lstm_input")
+        time_size = net.time_embed.out_features
+        conv = net.conv[0]
+        reference_features = net.conv(reference.permute(2, 0, 1).unsqueeze(0).to(conv.weight) / net.image_scale)[0]
+        conv_size = len(reference_features)
+        conv_weight_t = lstm_input[:conv_size].view(conv.out_channels, -1, lstm_input.shape[1])
+        running = RunningConvGates(conv, net.image_scale, reference, conv_weight_t, reference_features @ lstm_input[:conv_size])
+        times = net.time_embed(torch.eye(net.time_embed.in_features, device=lstm_input.device))
+        time_gates = torch.addmm(weights.pop("lstm_bias"), times, lstm_input[conv_size : conv_size + time_size])
+        return {**weights, "running_conv_gates": running, "time_gates": time_gates, "noise_input": lstm_input[conv_size + time_size :]}
+
+
+class MaskedLSTMRecurrence(torch.autograd.Function):
+    """The recurrence of an LSTM over a whole rollout, with the state zeroed where `keep` is 0, and its
+    hand-written backward pass (backpropagation through time).
+
+    Inputs: `projected` [T, N, 4H], the input projection W_ih x + b_ih + b_hh of every step (computed
+    outside: for the teacher, sparsely); `weight_hh` [4H, H]; the initial state h0, c0 [N, H]; `keep`
+    [T, N, 1], 0 where an episode starts at step t. Output: h [T, N, H]. Gates in PyTorch's order i, f,
+    g, o.
+
+    Autograd over a Python loop of LSTM steps is slow on CPU: the backward of each step's slice of
+    `projected` allocates and adds a gradient the size of all of it. Here the forward keeps the activated
+    gates, the backward runs only the small sequential part step by step (one [N, 4H] x [4H, H] matmul
+    and a few elementwise ops) and forms the weight gradient in one [H, T * N] x [T * N, 4H] matmul. Its
+    cost does not depend on where the episodes end.
+    """
+
+    @staticmethod
+    def forward(ctx, projected, weight_hh, h0, c0, keep):
+        steps, n, four_h = projected.shape
+        hidden = four_h // 4
+        gates = torch.empty_like(projected)
+        c_all = projected.new_empty(steps, n, hidden)
+        h_all = projected.new_empty(steps, n, hidden)
+        h_in = projected.new_empty(steps, n, hidden)  # the state entering step t, after any reset
+        c_in = projected.new_empty(steps, n, hidden)
+        weight_t = weight_hh.t().contiguous()  # [H, 4H]: the faster layout for h @ W_hh^T
+        h, c = h0, c0
+        for t in range(steps):
+            torch.mul(h, keep[t], out=h_in[t])
+            torch.mul(c, keep[t], out=c_in[t])
+            g = torch.addmm(projected[t], h_in[t], weight_t, out=gates[t])
+            g[:, : 2 * hidden].sigmoid_()  # i, f
+            g[:, 2 * hidden : 3 * hidden].tanh_()  # g
+            g[:, 3 * hidden :].sigmoid_()  # o
+            c = torch.addcmul(g[:, hidden : 2 * hidden] * c_in[t], g[:, :hidden], g[:, 2 * hidden : 3 * hidden], out=c_all[t])
+            h = torch.mul(g[:, 3 * hidden :], torch.tanh(c), out=h_all[t])
+        ctx.save_for_backward(weight_hh, gates, c_all, h_in, c_in, keep)
+        return h_all
+
+    @staticmethod
+    def backward(ctx, grad_h):
+        weight_hh, gates, c_all, h_in, c_in, keep = ctx.saved_tensors
+        steps, n, four_h = gates.shape
+        hidden = four_h // 4
+        i, f, g, o = gates.view(steps, n, 4, hidden).unbind(2)
+        tanh_c = torch.tanh(c_all)
+        # Everything that does not depend on the incoming gradient, for all steps at once:
+        # dc_t += dh_t * dc_from_dh; d(i, f, g pre-activations) = dc_t * ifg_factors; d(o) = dh_t * o_factor.
+        dc_from_dh = o * (1 - tanh_c * tanh_c)
+        ifg_factors = torch.stack([g * i * (1 - i), c_in * f * (1 - f), i * (1 - g * g)], 2)
+        o_factor = tanh_c * o * (1 - o)
+        dc_carry = f * keep
+        grad_gates = torch.empty_like(gates)
+        grad_gates_split = grad_gates.view(steps, n, 4, hidden)
+        dh_carry = gates.new_zeros(n, hidden)
+        dc = gates.new_zeros(n, hidden)
+        for t in reversed(range(steps)):
+            dh = grad_h[t] + dh_carry
+            dc = torch.addcmul(dc, dh, dc_from_dh[t])
+            torch.mul(dc.unsqueeze(1), ifg_factors[t], out=grad_gates_split[t, :, :3])
+            torch.mul(dh, o_factor[t], out=grad_gates_split[t, :, 3])
+            dh_carry = torch.mm(grad_gates[t], weight_hh).mul_(keep[t])
+            dc = dc * dc_carry[t]
+        grad_weight_hh = grad_gates.view(steps * n, four_h).t() @ h_in.view(steps * n, hidden)
+        return grad_gates, grad_weight_hh, dh_carry, dc, None

@@ -1,0 +1,144 @@
+"""What every algorithm script does around its algorithm: read the command line (one `error:` line for
+bad input), check CarRacing's track file, set up the device, write checkpoints atomically, log metrics and
+level images, and measure how well a curriculum's score tracks the true regret."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import re
+import sys
+
+import numpy as np
+import torch
+import tyro
+from matplotlib.image import imread
+
+from envs import keep_freed_memory
+
+
+def fail(message: str) -> None:
+    """Bad input: one clear line, exit status 2, nothing written."""
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def parse_command_line(args_class, paper_args, default_deciding: dict, description: str):
+    """A script's options (an `args_class` instance) from the command line. --env and the switches of
+    `default_deciding` ({name: type}) are read first, so that every other option defaults to
+    `paper_args(env, **switches)`, the paper's value for them, and --help shows those values. tyro reports
+    a bad option (a value of the wrong type, an unknown option) in a box of many lines: its first
+    paragraph becomes one `error:` line, as every other bad input."""
+    first = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    first.add_argument("--env", default="maze")
+    for name, kind in default_deciding.items():
+        flag = "--" + name.replace("_", "-")
+        if kind is bool:
+            first.add_argument(flag, action=argparse.BooleanOptionalAction)
+        else:
+            first.add_argument(flag, type=kind)
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            given, _ = first.parse_known_args()
+        default = paper_args(**{name: value for name, value in vars(given).items() if value is not None})
+    except (SystemExit, KeyError):  # a bad --env or value: the full parse below reports it
+        default = paper_args()
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            args = tyro.cli(args_class, default=default, description=description)
+    except SystemExit as exit_request:
+        if exit_request.code:  # (0 after --help)
+            box = re.sub(r"\x1b\[[0-9;]*m", "", captured.getvalue()).splitlines()[1:]  # no colours, no title
+            lines = [line.strip(" │─╰╯") for line in box] + [""]
+            fail(" ".join(lines[: lines.index("")]) + " (see --help)")
+        raise
+    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+    return args
+
+
+def check_track_file(args) -> None:
+    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
+    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
+    if args.f1_tracks is not None and args.env != "carracing":
+        fail("--f1-tracks applies to --env carracing only")
+    path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
+    if args.env == "carracing" and path:
+        if path != "none":
+            from envs.carracing import load_f1_tracks
+
+            try:
+                load_f1_tracks(path)
+            except ValueError as error:
+                fail(str(error))
+        os.environ["CLEANUED_F1_TRACKS"] = path
+
+
+def select_device(use_cuda: bool, torch_deterministic: bool, env: str) -> torch.device:
+    """The GPU if asked for and present, else the CPU, with torch set up for it. On a CPU, glibc keeps
+    freed memory (`keep_freed_memory`: the PPO update's large tensors stop page-faulting). On a GPU,
+    float32 in cuDNN's convs and LSTM too (no TF32), so acting and training compute the same numbers and
+    PPO's first ratio is 1 as on a CPU; cuDNN's deterministic algorithms with --torch-deterministic (CleanRL's
+    flag), else it times its algorithms for CarRacing's fixed-shape convs. Distributions skip their
+    argument checks, each of which would wait for the GPU."""
+    device = torch.device("cuda" if torch.cuda.is_available() and use_cuda else "cpu")
+    if device.type == "cpu":
+        keep_freed_memory()
+    torch.backends.cudnn.deterministic = torch_deterministic
+    torch.backends.cudnn.allow_tf32 = False
+    torch.backends.cudnn.benchmark = env == "carracing" and not torch_deterministic
+    torch.distributions.Distribution.set_default_validate_args(False)
+    return device
+
+
+def save_checkpoint(path: str, state: dict) -> None:
+    """Written beside and renamed over the old one: a run killed while saving keeps its last checkpoint."""
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def log_scalars(tensorboard, row: dict, step: int) -> None:
+    """One update's metrics in TensorBoard (`tensorboard --logdir runs`): losses, entropies and KL
+    statistics under losses/, everything else under charts/."""
+    for name, value in row.items():
+        if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value):
+            group = "losses" if any(part in name for part in ("loss", "entropy", "kl", "clipfrac")) else "charts"
+            tensorboard.add_scalar(f"{group}/{name}", value, step)
+
+
+def log_image(tensorboard, path: str, step: int, track: bool) -> None:
+    """A saved PNG of the curriculum's levels in TensorBoard's images, and in wandb with --track."""
+    tensorboard.add_image("curriculum/levels", imread(path)[..., :3], step, dataformats="HWC")
+    if track:
+        import wandb
+
+        wandb.log({"curriculum/levels": wandb.Image(path)}, step=step)
+
+
+def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation, ties given their average rank; NaN if either side is constant."""
+    def average_ranks(x):
+        _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        return (np.cumsum(counts) - counts + (counts - 1) / 2)[inverse]
+
+    ranks_a, ranks_b = average_ranks(a), average_ranks(b)
+    if ranks_a.std() == 0 or ranks_b.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
+    """How well the curriculum's score tracks the true regret, where the env knows each level's best
+    return (the maze): the mean optimal return, the share of levels solvable within the episode limit,
+    the true regret (optimal return - the student's mean return over its completed episodes; a level
+    without one counts 0) and the rank correlation of the score with the true regret. Nothing for an
+    env without a solver."""
+    if optimal is None:
+        return {}
+    achieved = np.array([np.mean(r) if len(r) else 0.0 for r in returns_per_level])
+    true_regret = optimal - achieved
+    return {"optimal_return": float(optimal.mean()), "solvable": float(np.mean(optimal > 0)),
+            "true_regret": float(true_regret.mean()), "score_true_regret_correlation": rank_correlation(scores, true_regret)}
