@@ -95,8 +95,9 @@ def summarize(runs: dict) -> dict:
     return summary
 
 
-def cell(mean: float, se: float) -> str:
-    return f"{mean:.2f} ± {se:.2f}"
+def cell(mean: float, se: float, seeds: int) -> str:
+    """mean ± standard error; the mean alone from a single seed, which has no standard error."""
+    return f"{mean:.2f} ± {se:.2f}" if seeds > 1 else f"{mean:.2f}"
 
 
 def table(summary: dict) -> str:
@@ -105,8 +106,8 @@ def table(summary: dict) -> str:
     names = list(summary)
     lines = ["| maze | " + " | ".join(EXPERIMENTS.get(n, n) for n in names) + " |", "|---" * (len(names) + 1) + "|"]
     for maze in MAZES:
-        lines.append(f"| {maze} | " + " | ".join(cell(summary[n]["per_level"][maze]["mean"], summary[n]["per_level"][maze]["se"]) for n in names) + " |")
-    lines.append("| **mean** | " + " | ".join(f"**{cell(summary[n]['mean_solved_rate'], summary[n]['se'])}**" for n in names) + " |")
+        lines.append(f"| {maze} | " + " | ".join(cell(summary[n]["per_level"][maze]["mean"], summary[n]["per_level"][maze]["se"], len(summary[n]["seeds"])) for n in names) + " |")
+    lines.append("| **mean** | " + " | ".join(f"**{cell(summary[n]['mean_solved_rate'], summary[n]['se'], len(summary[n]['seeds']))}**" for n in names) + " |")
     lines.append("| IQM [95% CI] | " + " | ".join(f"{summary[n]['iqm']:.2f} [{summary[n]['iqm_ci'][0]:.2f}, {summary[n]['iqm_ci'][1]:.2f}]" for n in names) + " |")
     lines.append("| optimality gap [95% CI] | " + " | ".join(
         f"{summary[n]['optimality_gap']:.2f} [{summary[n]['optimality_gap_ci'][0]:.2f}, {summary[n]['optimality_gap_ci'][1]:.2f}]" for n in names) + " |")
@@ -115,7 +116,7 @@ def table(summary: dict) -> str:
     lines += ["", "The paper's solved rates (maze 0-60, 250M steps, 5 seeds; mean ± standard error):", "",
               "| maze | " + " | ".join(EXPERIMENTS[n] for n in paper) + " |", "|---" * (len(paper) + 1) + "|"]
     for i, maze in enumerate([*MAZES, "**mean**"]):
-        lines.append(f"| {maze} | " + " | ".join(cell(*PAPER[n][i]) for n in paper) + " |")
+        lines.append(f"| {maze} | " + " | ".join(cell(*PAPER[n][i], seeds=5) for n in paper) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -266,7 +267,7 @@ def main(argv=None) -> None:
     plot_levels(runs, os.path.join(args.directory, "levels.png"))
     plot_true_regret(runs, os.path.join(args.directory, "true_regret.png"))
     for name, s in summary.items():
-        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seeds  mean solved {cell(s['mean_solved_rate'], s['se'])}  "
+        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed(s)  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
               f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")
 
 
