@@ -136,7 +136,7 @@ def plot_solved_per_maze(summary: dict, path: str) -> None:
         means = [levels[m]["mean"] for m in MAZES] + [summary[name]["mean_solved_rate"]]
         errors = [levels[m]["se"] for m in MAZES] + [summary[name]["se"]]
         ax.bar(x, means, width, yerr=errors, capsize=2, color=colour[name],
-               label=f"{EXPERIMENTS.get(name, name)} ({len(summary[name]['seeds'])} seeds)")
+               label=f"{EXPERIMENTS.get(name, name)} ({len(summary[name]['seeds'])} seed{'s' * (len(summary[name]['seeds']) > 1)})")
     for i, name in enumerate(n for n in names if n in PAPER):  # the paper's mean, on the "mean" group
         x = len(MAZES) + (names.index(name) - (len(names) - 1) / 2) * width
         ax.plot(x, PAPER[name][-1][0], marker="_", markersize=14, markeredgewidth=2.5, color="black",
@@ -267,7 +267,7 @@ def main(argv=None) -> None:
     plot_levels(runs, os.path.join(args.directory, "levels.png"))
     plot_true_regret(runs, os.path.join(args.directory, "true_regret.png"))
     for name, s in summary.items():
-        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed(s)  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
+        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed{'s' * (len(s['seeds']) > 1)}  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
               f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")
 
 
