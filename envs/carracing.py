@@ -440,12 +440,12 @@ class CarRacingEnv:
 
     def render_trajectory(self, level: CarRacingLevels, positions: np.ndarray) -> np.ndarray:
         """One level's top-down image [128, 128, 3] (level: a batch of one) with a driven path drawn
-        in blue: positions [T, 2] in world units, e.g. car_positions() collected over an episode."""
+        in blue: positions [T, 2] in world units, e.g. agent_positions() collected over an episode."""
         track = self.track_of(level, 0)
         return draw_trajectory(level_image(track), positions, track.playfield)
 
-    def car_positions(self) -> np.ndarray:
-        """The hull position (x, y) of every copy [N, 2]."""
+    def agent_positions(self) -> np.ndarray:
+        """The car's hull position (x, y) of every copy [N, 2], in world units."""
         return np.array([tuple(car.hull.position) for car in self.cars])
 
     # --- the vectorized student env ------------------------------------------------------------

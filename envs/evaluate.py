@@ -21,7 +21,8 @@ import numpy as np
 import torch
 
 import envs
-from envs.evaluation import evaluate_all, fail
+from envs.evaluation import evaluate_all
+from envs.runs import fail
 
 # The scripts' default episodes per held-out level: CarRacing's episodes are long.
 DEFAULT_EPISODES = {"maze": 100, "maze25": 100, "carracing": 10, "walker": 100}

@@ -11,12 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 
 import numpy as np
 import torch
 
 import envs
+from envs.runs import fail
 
 
 def to_torch(obs: dict, device) -> dict:
@@ -75,12 +75,6 @@ def evaluate_all(agent, env_name: str, names, episodes: int, seed: int, device) 
 # ---------------------------------------------------------------------------------------------------
 BOOTSTRAP_REPETITIONS = 10_000
 METRICS = ("solved_rate", "mean_return")
-
-
-def fail(message: str) -> None:
-    """Bad input: one clear line, exit status 2."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
 
 
 def interquartile_mean(scores: np.ndarray):

@@ -103,5 +103,8 @@ class Env(Protocol):
     def render_trajectory(self, level: LevelBatch, positions: np.ndarray) -> np.ndarray:
         """One level's image [H, W, 3] (level: a batch of one) with a path of positions [T, 2] (x, y) drawn on it."""
 
+    def agent_positions(self) -> np.ndarray:
+        """Where each copy's agent is now, [N, 2] (x, y) in the units render_trajectory draws."""
+
     def teacher(self) -> TeacherMDP:
         """PAIRED's adversary MDP, its noise drawn from rng."""

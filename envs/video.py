@@ -5,8 +5,8 @@ own renderers and written with imageio.
     carracing  the car's own 96x96 view beside the top-down track, the path driven so far in blue
     walker     the course's profile, the hull's trace so far in red
 
-Each frame is the env's render_trajectory of the path so far; only where the path comes from differs:
-the maze's and the car's positions before each step, the walker's hull after each step.
+Each frame is the env's render_trajectory of the path so far, the agent's positions (agent_positions)
+recorded before each step.
 
 A GIF shows at most MAX_FRAMES frames, evenly spaced over the episode (the first and the last
 included), so it stays at a few hundred KB however long the episode is.
@@ -65,29 +65,24 @@ def episode_frames(agent, env_name: str, env, levels, max_steps: int, device) ->
     done = torch.ones(1, device=device)
     # What each step's frame needs, recorded before the step: a copy restarts its level as soon as an
     # episode ends, so the state after the last step is gone by the time step returns.
-    views, positions, hull_trace = [], [], []
+    views, positions = [], []
     while True:
-        if maze:  # the agent's cell
-            positions.append(env.agent_positions()[0])
-        if carracing:  # the car's view and where it is
+        positions.append(env.agent_positions()[0])
+        if carracing:  # the car's own view, shown beside the track
             views.append(obs["image"][0, -3:].transpose(1, 2, 0))
-            positions.append(env.car_positions()[0])
         action, _, _, _, state = agent.get_action_and_value(to_torch(obs, device), state, done)
-        obs, _, terminated, truncated, info = env.step(action.cpu().numpy())
-        if not (maze or carracing):  # the walker reports its hull after each step, before any restart
-            hull_trace.append(info["hull_position"][0])
+        obs, _, terminated, truncated, _ = env.step(action.cpu().numpy())
         if terminated[0] or truncated[0]:
             break
         done = torch.zeros(1, device=device)
     if maze and terminated[0]:
         positions.append(levels.goal[0])  # a maze episode terminates on reaching the goal
-    count = max(len(positions), len(hull_trace))
-    shown = np.unique(np.linspace(0, count - 1, min(count, MAX_FRAMES)).round().astype(np.int64))
+    shown = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), MAX_FRAMES)).round().astype(np.int64))
     if maze:
         return [maze_frame(env, levels, np.array(positions[: t + 1])) for t in shown]
     if carracing:
-        return [car_frame(env, levels, views[t], np.array(positions[: t + 1])) for t in shown]
-    return [env.render_trajectory(levels, np.array(hull_trace[: t + 1])) for t in shown]
+        return [car_frame(env, levels, views[min(t, len(views) - 1)], np.array(positions[: t + 1])) for t in shown]
+    return [env.render_trajectory(levels, np.array(positions[: t + 1])) for t in shown]
 
 
 def maze_frame(env, levels, path: np.ndarray) -> np.ndarray:

@@ -268,8 +268,12 @@ class WalkerEnv:
 
     def render_trajectory(self, level: WalkerLevels, positions: np.ndarray) -> np.ndarray:
         """One level's profile [96, 256, 3] (level: a batch of one) with a walker's run drawn over it in
-        red: positions [T, 2] is the hull's (x, y) trace, e.g. the "hull_position" entries of step's info."""
+        red: positions [T, 2] is the hull's (x, y) trace, e.g. agent_positions() collected over an episode."""
         return self._course_image(level, np.asarray(positions, dtype=np.float64).reshape(-1, 2))
+
+    def agent_positions(self) -> np.ndarray:
+        """The hull's (x, y) of every copy [N, 2], in Box2D world units."""
+        return np.array([tuple(walker.hull.position) for walker in self.walkers.walkers])
 
     def _course_image(self, level: WalkerLevels, trace: np.ndarray | None) -> np.ndarray:
         check_levels(level)

@@ -211,7 +211,7 @@ def test_leaving_the_playfield_costs_100_and_terminates():
     obs, reward, terminated, truncated, _ = env.step(still())
     assert reward[0] == pytest.approx(-100.0) and terminated[0] and not truncated[0]
     # The copy restarted its level: the car is back on the start point, the stack holds one frame.
-    assert np.allclose(env.car_positions()[0], env.tracks[0].xy[0], atol=0.1)
+    assert np.allclose(env.agent_positions()[0], env.tracks[0].xy[0], atol=0.1)
     assert np.array_equal(obs["image"][0, :3], obs["image"][0, 9:])
 
 

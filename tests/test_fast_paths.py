@@ -224,7 +224,7 @@ def test_fast_paths_serve_only_the_nets_they_recognise(monkeypatch):
     assert MazeStudent(16).fast_path() is not None and MazeTeacher(27, conv_channels=2, hidden_size=8).fast_path() is not None
 
     class Renamed(MazeStudent):
-        pass
+        """MazeStudent under another name: a subclass, which never inherits a fast path."""
 
     assert Renamed(16).fast_path() is None
     swapped = MazeStudent(16)

@@ -40,7 +40,7 @@ def test_grass_penalty_is_the_frames_mean_green_not_the_cars_position():
     # Standing on plain grass the frame's mean green is ~183 (grass 204 with a quarter of lighter
     # 230 patches, the black indicator bar, the car): not "on grass" by the reference's test.
     obs, reward, *_ = env.step(STILL)
-    x, y = env.car_positions()[0]
+    x, y = env.agent_positions()[0]
     row, column = (np.array([y, x]) + env.playfield[0]) * PIXELS_PER_UNIT + MAP_MARGIN
     assert env.maps[0][int(row), int(column)] != ROAD  # the hull is off the road
     assert 180 < newest_green_mean(obs) < 185
