@@ -4,8 +4,9 @@
 
 reads DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
 summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
-training.png (c), levels.png (d) and true_regret.png (e: the true regret of the training levels and
-its rank correlation with each algorithm's own score, for the runs that logged it).
+training.png (c), levels.png (d) and true_regret.png (e: each algorithm's own score, its estimate of
+regret, beside the true regret of the training levels and the rank correlation of the two, for the runs
+that logged it).
 """
 
 from __future__ import annotations
@@ -216,19 +217,23 @@ def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailin
     plt.close(fig)
 
 
-REGRET_CURVES = [("true regret of the training levels", ("true_regret",), None),
+# The score each algorithm steers by, its estimate of regret: PAIRED's max antagonist return - mean
+# protagonist return (Evo: U(A) - U(P)), the curators' positive value loss (PLR's score).
+REGRET_CURVES = [("the algorithm's score (regret estimate)", ("regret", "mean_score"), None),
+                 ("true regret of the training levels", ("true_regret",), None),
                  ("its rank correlation with the score", ("score_true_regret_correlation",), (-1, 1)),
                  ("share of training levels solvable", ("solvable",), (0, 1))]
 
 
 def plot_true_regret(runs: dict, path: str) -> None:
-    """(e) How well each curriculum's score tracks the true regret (optimal return - the student's
-    return, from a solver of each training level), for the runs that logged it."""
+    """(e) Each curriculum's score (its regret estimate) beside the true regret (optimal return - the
+    student's return, from a solver of each training level) and how well the one ranks levels by the
+    other, for the runs that logged it."""
     logged = {name: {seed: run for seed, run in seeds.items() if run["metrics"] and "true_regret" in run["metrics"][0]}
               for name, seeds in runs.items()}
     logged = {name: seeds for name, seeds in logged.items() if seeds}
     if logged:
-        plot_training(logged, path, REGRET_CURVES, "True regret (trailing mean over {smoothing} updates; band: ± s.e. over seeds)")
+        plot_training(logged, path, REGRET_CURVES, "Estimated and true regret (trailing mean over {smoothing} updates; band: ± s.e. over seeds)")
 
 
 def plot_levels(runs: dict, path: str) -> None:
