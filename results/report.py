@@ -210,7 +210,7 @@ def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailin
         ax.set_xlabel("protagonist env steps (M)")
         if limits:
             ax.set_ylim(*limits)
-    axes[0].legend(fontsize=7)
+    next((ax for ax in axes if ax.lines), axes[0]).legend(fontsize=7)  # on the first panel with curves
     fig.suptitle(title.format(smoothing=SMOOTHING))
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -18,14 +18,15 @@ def fake_run(folder, solved: dict, teacher: bool) -> None:
     json.dump(results, open(os.path.join(folder, "eval.json"), "w"))
     return_column = "protagonist_return" if teacher else "mean_return"
     columns = ["update", "env_steps", return_column, "val_solved_rate", "walls", "path_length",
-               *(["teacher_entropy"] if teacher else ["true_regret", "score_true_regret_correlation", "solvable"])]
+               *(["teacher_entropy"] if teacher else ["mean_score", "true_regret", "score_true_regret_correlation", "solvable"])]
     with open(os.path.join(folder, "metrics.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)
         writer.writeheader()
         for update in range(1, 41):
             writer.writerow({"update": update, "env_steps": 8192 * update, return_column: update / 40, "walls": 20, "path_length": 12,
                              "val_solved_rate": 0.5 if update % 10 == 0 else "",
-                             **({"teacher_entropy": 5.0} if teacher else {"true_regret": 0.5, "score_true_regret_correlation": -0.2, "solvable": 1.0})})
+                             **({"teacher_entropy": 5.0} if teacher else {"mean_score": 0.07, "true_regret": 0.5, "score_true_regret_correlation": -0.2,
+                                                                   "solvable": 1.0})})
 
 
 def test_report_on_hand_worked_runs(tmp_path):
