@@ -1,9 +1,11 @@
 """What of `--cuda` a CPU machine can test: the device every script chooses and the torch settings it
 makes for a GPU (no TF32, cuDNN's choice of algorithms, no per-call distribution checks)."""
 
+import numpy as np
 import pytest
 import torch
 
+from envs.evaluation import to_torch
 from envs.runs import select_device
 
 
@@ -32,3 +34,15 @@ def test_gpu_settings(deterministic, env, timed, restore_torch_settings):
     assert torch.backends.cudnn.allow_tf32 is False and not torch.backends.cuda.matmul.allow_tf32
     assert torch.backends.cudnn.benchmark == timed
     assert torch.distributions.Categorical(logits=torch.zeros(3))._validate_args is False
+
+
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
+def test_observations_reach_the_device_unchanged(device):
+    """to_torch keeps every array's values, shape and dtype; on a GPU through pinned host memory."""
+    obs = {"image": np.arange(2 * 12 * 4 * 4, dtype=np.uint8).reshape(2, 12, 4, 4), "direction": np.array([3, 1]),
+           "strided": np.arange(12.0, dtype=np.float32).reshape(3, 4).T}
+    tensors = to_torch(obs, device)
+    for key, array in obs.items():
+        assert tensors[key].device.type == device
+        assert tensors[key].dtype == torch.from_numpy(np.ascontiguousarray(array)).dtype
+        assert np.array_equal(tensors[key].cpu().numpy(), array)

@@ -63,6 +63,21 @@ def test_a_single_minibatch_is_the_whole_batch_as_a_view():
         assert torch.equal(flat, storage.reshape(12, 2)) and flat.data_ptr() == storage.data_ptr()
 
 
+def test_batch_rows_gathers_the_rows_of_any_storage_exactly():
+    """Image stacks of bytes go through as 4-byte words (a row of 12 x 4 x 4 bytes); rows of a byte count
+    not divisible by 4, and other dtypes, through plain index_select: every row its own bytes, in order."""
+    torch.manual_seed(0)
+    rows = torch.tensor([5, 0, 5, 11, 3])
+    for storage in (torch.randint(0, 256, (4, 3, 12, 4, 4), dtype=torch.uint8),  # CarRacing-like [T, N, C, H, W]
+                    torch.randint(0, 256, (4, 3, 5, 5, 3), dtype=torch.uint8),  # the maze's 75-byte views
+                    torch.randn(4, 3, 7)):
+        flat = storage.reshape((12,) + storage.shape[2:])
+        for batch_rows in (plr.batch_rows, paired.batch_rows):
+            gathered = batch_rows(storage, rows)
+            assert gathered.dtype == storage.dtype and gathered.shape == (5,) + storage.shape[2:]
+            assert torch.equal(gathered, torch.stack([flat[r] for r in rows.tolist()]))
+
+
 def test_value_losses_on_a_worked_example():
     value, old, ret = torch.tensor([1.0, 0.0]), torch.tensor([0.5, 0.0]), torch.tensor([0.0, 3.0])
     args = plr.paper_args(clip_coef=0.2, value_loss="mse")
