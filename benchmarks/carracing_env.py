@@ -9,8 +9,9 @@ of N copies counts as N agent steps; episodes restart their level. Gymnasium: on
 stepped 8 times per agent step with the same actions mapped to steer = 2 a0 - 1, gas = a1, brake = a2,
 reset when an episode ends. For context: physics-only frames per second (gymnasium's Car.step +
 world.Step, looped over our copies' worlds and in gymnasium's own env) and the renderer's time per
-observation, which must not exceed the physics time of the 8 frames it stands for. The last line ends
-with the ratio ours / gymnasium as a bare number.
+observation, which must not exceed the physics time of the 8 frames it stands for, and the grass test
+of training's intermediate frames (green_means_of_views) against rendering the frame whole for it (the
+same means). The last line ends with the ratio ours / gymnasium as a bare number.
 """
 
 from __future__ import annotations
@@ -83,6 +84,18 @@ def bench_render_ours(env: CarRacingEnv, seconds: float) -> float:
     return 1.0 / rate
 
 
+def bench_grass_test(env: CarRacingEnv, seconds: float) -> tuple[float, float]:
+    """Seconds per call (all copies, car states read once) of the grass test's two paths, alternated:
+    (whole view: green_means(classes), green_means_of_views)."""
+    car, copies = env._car_states(), np.arange(env.num_envs)
+    renderer = env.renderer
+    whole, cheap = [], []
+    for _ in range(6):
+        whole.append(1.0 / timed(lambda: (renderer.green_means(renderer.classes(car, copies)), 1)[1], seconds / 12)[0])
+        cheap.append(1.0 / timed(lambda: (renderer.green_means_of_views(car, copies), 1)[1], seconds / 12)[0])
+    return float(np.median(whole)), float(np.median(cheap))
+
+
 def bench_gymnasium(seconds: float, seed: int) -> tuple[float, int, float]:
     """-> (agent steps per second, agent steps timed, physics-only frames per second) of CarRacing-v3."""
     import gymnasium as gym
@@ -136,12 +149,14 @@ def main() -> None:
     gym_sps, gym_steps, gym_physics_fps = bench_gymnasium(args.seconds, args.seed)
     physics_fps = bench_physics_ours(env, min(args.seconds, 3.0), args.seed)
     render_seconds = bench_render_ours(env, min(args.seconds, 3.0))
+    whole_view, green_only = bench_grass_test(env, min(args.seconds, 3.0))
     print(f"{'env':<44}{'agent steps':>12}{'steps/s':>10}")
     print(f"{f'envs/carracing.py, {args.copies} copies':<44}{ours_steps:>12,}{ours_sps:>10,.1f}")
     print(f"{'gymnasium CarRacing-v3, 8-frame repeat':<44}{gym_steps:>12,}{gym_sps:>10,.1f}")
     physics_per_step = ACTION_REPEAT / physics_fps
     print(f"physics only: ours {physics_fps:,.0f} frames/s ({physics_per_step * 1e3:.2f} ms per copy per agent step), gymnasium's {gym_physics_fps:,.0f} frames/s")
     print(f"renderer: {render_seconds * 1e3:.3f} ms per observation (one copy) = {render_seconds / physics_per_step:.2f} x the physics of its 8 frames")
+    print(f"grass test of {args.copies} copies' frame: whole view {whole_view * 1e3:.3f} ms, green_means_of_views {green_only * 1e3:.3f} ms ({whole_view / green_only:.2f}x)")
     print(f"ratio carracing({args.copies})/gymnasium: {ours_sps / gym_sps:.1f}")
 
 

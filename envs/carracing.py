@@ -499,7 +499,7 @@ class CarRacingEnv:
         terminated = np.zeros(n, dtype=bool)
         running = np.ones(n, dtype=bool)
         x, y = np.zeros(n), np.zeros(n)
-        for _ in range(ACTION_REPEAT):
+        for frame in range(ACTION_REPEAT):
             active = np.nonzero(running)[0]
             if len(active) == 0:
                 break
@@ -519,9 +519,16 @@ class CarRacingEnv:
             ended = outside | lap
             if self.training:
                 frame_reward += DONE_BONUS * ended
-                # The reference renders the view after every physics frame and tests it for grass.
-                self.classes[active] = self.renderer.classes(self._car_states(active), active)
-                on_grass = self.renderer.green_means(self.classes[active]) > GRASS_GREEN_MEAN
+                # The reference renders the view after every physics frame and tests it for grass. The
+                # last frame's view is the observation, so it is rendered whole; the others' green
+                # means come cheaper, without their images.
+                car = self._car_states(active)
+                if frame == ACTION_REPEAT - 1:
+                    self.classes[active] = self.renderer.classes(car, active)
+                    green_means = self.renderer.green_means(self.classes[active])
+                else:
+                    green_means = self.renderer.green_means_of_views(car, active)
+                on_grass = green_means > GRASS_GREEN_MEAN
                 frame_reward -= GRASS_PENALTY * on_grass
                 slot = self.history_pos[active]
                 self.history[active, slot] = frame_reward
@@ -565,29 +572,27 @@ class CarRacingEnv:
         """The car quantities the view shows, one row per copy of `copies` (indices; all copies by
         default), wheel poses in the hull's frame."""
         copies = np.arange(self.num_envs) if copies is None else copies
-        n = len(copies)
-        state = {key: np.zeros(n) for key in ("x", "y", "angle", "speed", "steering", "angular_velocity")}
-        state.update(velocity=np.zeros((n, 2)), wheel_xy=np.zeros((n, 4, 2)))
-        state.update({key: np.zeros((n, 4)) for key in ("wheel_angle", "wheel_phase", "wheel_omega")})
-        for row, i in enumerate(copies.tolist()):
+        # One row per copy (numbers gathered in a list, one array made at the end): x, y, angle, speed,
+        # angular velocity, steering, velocity (2), then per wheel x, y, angle, phase, omega.
+        rows = []
+        for i in copies.tolist():
             car = self.cars[i]
             hull = car.hull
             hx, hy = hull.position
             angle = hull.angle
             cos, sin = math.cos(angle), math.sin(angle)
             vx, vy = hull.linearVelocity
-            state["x"][row], state["y"][row], state["angle"][row] = hx, hy, angle
-            state["velocity"][row] = vx, vy
-            state["speed"][row] = math.hypot(vx, vy)
-            state["angular_velocity"][row] = hull.angularVelocity
-            state["steering"][row] = car.wheels[0].joint.angle
-            for k, wheel in enumerate(car.wheels):
+            row = [hx, hy, angle, math.hypot(vx, vy), hull.angularVelocity, car.wheels[0].joint.angle, vx, vy]
+            for wheel in car.wheels:
                 wx, wy = wheel.position
                 dx, dy = wx - hx, wy - hy
-                state["wheel_xy"][row, k] = (cos * dx + sin * dy, -sin * dx + cos * dy)
-                state["wheel_angle"][row, k] = wheel.angle - angle
-                state["wheel_phase"][row, k] = wheel.phase
-                state["wheel_omega"][row, k] = wheel.omega
+                row += (cos * dx + sin * dy, -sin * dx + cos * dy, wheel.angle - angle, wheel.phase, wheel.omega)
+            rows.append(row)
+        values = np.array(rows, dtype=np.float64).reshape(len(copies), 8 + 4 * 5)
+        wheels = values[:, 8:].reshape(len(copies), 4, 5)
+        state = dict(zip(("x", "y", "angle", "speed", "angular_velocity", "steering"), values[:, :6].T))
+        state.update(velocity=values[:, 6:8], wheel_xy=wheels[:, :, :2], wheel_angle=wheels[:, :, 2])
+        state.update(wheel_phase=wheels[:, :, 3], wheel_omega=wheels[:, :, 4])
         return state
 
     def _observe(self, stale: np.ndarray, fresh: np.ndarray) -> None:

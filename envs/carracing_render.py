@@ -47,6 +47,12 @@ HULL_POLYGONS = [
 ]
 WHEEL_HALF_WIDTH = 14 * CAR_SIZE
 WHEEL_HALF_LENGTH = 27 * CAR_SIZE
+# A wheel's pixels have their centres within hypot(half width, half length) = 0.608 world units of the
+# wheel's centre. They lie in its block: from the first row (column) whose centre is at most WHEEL_REACH
+# before the wheel's centre, 3 rows (2 columns), as the next one's centre would be 3 x 0.514 = 1.54
+# (2 x 0.643 = 1.29) units on, beyond the wheel's far reach, 0.625 + 0.608 = 1.23 units on.
+WHEEL_REACH = 0.625
+WHEEL_BLOCK_ROWS, WHEEL_BLOCK_COLUMNS = 3, 2
 
 # Classes and their colours (gymnasium's default colours).
 OUTSIDE, BACKGROUND, GRASS, ROAD, KERB_WHITE, KERB_RED, HULL, WHEEL, WHEEL_STRIPE, BAR = range(10)
@@ -74,11 +80,13 @@ PALETTE = np.array(
 PALETTE_CHANNELS = np.ascontiguousarray(PALETTE.T)  # [3, classes]: one lookup per channel gives CHW
 
 GREEN_LEVELS = PALETTE[:, 1].astype(np.float64)  # each class's green channel
+GREEN_CHANNEL = PALETTE_CHANNELS[1]  # the same, uint8 (sums of uint8 levels are exact integers)
 
 # The car's neighbourhood in the image, where wheels are drawn however they are turned (rows 60-83,
 # columns 40-55; they reach 2.6 world units from the car's centre: 5 rows or 4 columns).
 CAR_ROWS = slice(60, 84)
 CAR_COLUMNS = slice(40, 56)
+BAR_TOP = 84  # the indicator bar's first row: it covers the bottom 5/40 of the image
 # The reference's camera follows the direction of travel above this speed (world units per second).
 CAMERA_SPEED = 0.5
 
@@ -223,33 +231,58 @@ def _pixel_offsets() -> tuple[np.ndarray, np.ndarray]:
     return np.broadcast_to(across[None, :], (STATE_SIZE, STATE_SIZE)), np.broadcast_to(along[:, None], (STATE_SIZE, STATE_SIZE))
 
 
-def _inside_convex(px: np.ndarray, py: np.ndarray, polygon) -> np.ndarray:
-    """Points inside a convex polygon (either winding)."""
-    polygon = np.asarray(polygon, dtype=np.float64)
-    signs = []
-    for k in range(len(polygon)):
-        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % len(polygon)]
-        signs.append((bx - ax) * (py - ay) - (by - ay) * (px - ax))
-    signs = np.stack(signs)
+def _edges(polygon: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A polygon's [V, 2] edges: start x, y and direction (end - start) x, y, each [V, 1, 1] (one
+    edge per entry, ready to meet 2-D arrays of points)."""
+    start, direction = polygon, np.roll(polygon, -1, axis=0) - polygon
+    return tuple(column.reshape(-1, 1, 1) for column in (start[:, 0], start[:, 1], direction[:, 0], direction[:, 1]))
+
+
+def _inside_convex(px: np.ndarray, py: np.ndarray, edges: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Points [R, C] inside a convex polygon (either winding), given by its _edges: on the same side
+    of every edge. All edges are tested at once."""
+    ax, ay, dx, dy = edges
+    signs = dx * (py - ay) - dy * (px - ax)
     return np.all(signs >= 0, axis=0) | np.all(signs <= 0, axis=0)
+
+
+def _sums(levels: np.ndarray) -> np.ndarray:
+    """The sum of each uint8 image [N, ...] of levels, int64 [N] (summed in uint32: exact, as an image
+    of 96 x 96 holds at most 2.4 million)."""
+    return levels.reshape(len(levels), -1).sum(axis=1, dtype=np.uint32).astype(np.int64)
 
 
 class ViewRenderer:
     """Renders the 96x96 views of env copies at once from their class maps and car states: `classes`
     gives class images, `colours` turns them into RGB views (`render` does both) and `green_means`
-    gives the mean green of each view (the reference's grass test)."""
+    gives the mean green of each view (the reference's grass test); `green_means_of_views` gives the
+    same means straight from the car states, without whole class images."""
 
     def __init__(self):
         self.across, self.along = _pixel_offsets()
-        self.across_flat = (self.across.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)  # in map cells
-        self.along_flat = (self.along.reshape(-1) * PIXELS_PER_UNIT).astype(np.float32)
+        self.across_cells = (self.across[0] * PIXELS_PER_UNIT).astype(np.float32)  # of each column, in map cells
+        self.along_cells = (self.along[:, 0] * PIXELS_PER_UNIT).astype(np.float32)  # of each row
         self.hull_polygons = [np.array(polygon, dtype=np.float64) * CAR_SIZE for polygon in HULL_POLYGONS]
-        reach = max(np.hypot(polygon[:, 0], polygon[:, 1]).max() for polygon in self.hull_polygons)
-        self.hull_pixels = np.nonzero(np.hypot(self.across, self.along) <= reach)  # the hull's, however turned
-        self.hull_across, self.hull_along = self.across[self.hull_pixels], self.along[self.hull_pixels]
+        self.hull_edges = [_edges(polygon) for polygon in self.hull_polygons]
         self.car_across = self.across[CAR_ROWS, CAR_COLUMNS]
         self.car_along = self.along[CAR_ROWS, CAR_COLUMNS]
+        reach = max(np.hypot(polygon[:, 0], polygon[:, 1]).max() for polygon in self.hull_polygons)
+        # The pixels of the car's window the hull may cover, however turned (it reaches 2.9 world units
+        # from the car's centre: 6 rows or 5 columns, inside the window).
+        self.hull_pixels = np.nonzero(np.hypot(self.car_across, self.car_along) <= reach)
+        self.hull_across, self.hull_along = self.car_across[self.hull_pixels], self.car_along[self.hull_pixels]
         self.bar_centres = np.arange(STATE_SIZE) + 0.5
+        # Gymnasium's vertical indicators (speed, then the ABS sensors of wheels 0-3) at places 5, 7,
+        # 8, 9, 10 of 40 across: the image columns of each, their bar's index and its class. No two
+        # bars share a column, so they can be drawn at once.
+        unit = STATE_SIZE / 40.0
+        columns = [np.nonzero((self.bar_centres >= place * unit) & (self.bar_centres <= (place + 1) * unit))[0] for place in (5, 7, 8, 9, 10)]
+        self.vertical_columns = np.concatenate(columns)
+        self.vertical_bar = np.repeat(np.arange(len(columns)), [len(c) for c in columns])
+        self.vertical_classes = np.array([SPEED, ABS_FRONT, ABS_FRONT, ABS_REAR, ABS_REAR], dtype=np.uint8)[self.vertical_bar]
+        # The rows of the horizontal indicators (steering, gyroscope): centres within [H - 4h, H - 2h].
+        band = np.nonzero((self.bar_centres >= STATE_SIZE - 4 * unit) & (self.bar_centres <= STATE_SIZE - 2 * unit))[0]
+        self.horizontal_rows = slice(band[0], band[-1] + 1)
 
     def set_maps(self, maps: list[np.ndarray], playfields: np.ndarray) -> None:
         """The class map of each copy (copies may share one map object: it is stored once)."""
@@ -263,15 +296,16 @@ class ViewRenderer:
         self.flat = np.empty(start, dtype=np.uint8)
         for key, m in unique.items():
             self.flat[offsets[key] : offsets[key] + m.size] = m.reshape(-1)
+        self.green_flat = GREEN_CHANNEL[self.flat]  # the maps' green levels, for the grass test
         self.offset = np.array([offsets[id(m)] for m in maps], dtype=np.int32)
         self.width = np.array([m.shape[0] for m in maps], dtype=np.int32)
         self.playfield = np.asarray(playfields, dtype=np.float64)
 
-    def _map_index(self, copies: np.ndarray, x: np.ndarray, y: np.ndarray, angle: np.ndarray) -> np.ndarray:
-        """Flat indices into the stored maps [len(copies), 96 * 96] of the view's pixels for copies
-        whose cameras are at x, y turned to `angle` (camera_angle) [len(copies)], each in its copy's
-        map. The centre is clamped to 5 units beyond the playfield (rendered cars are inside it), so
-        every coordinate is positive and truncation is the floor."""
+    def _map_index(self, copies: np.ndarray, x: np.ndarray, y: np.ndarray, angle: np.ndarray, rows: int = STATE_SIZE) -> np.ndarray:
+        """Flat indices into the stored maps [len(copies), rows, 96] of the view's pixels (its first
+        `rows` rows) for copies whose cameras are at x, y turned to `angle` (camera_angle)
+        [len(copies)], each in its copy's map. The centre is clamped to 5 units beyond the playfield
+        (rendered cars are inside it), so every coordinate is positive and truncation is the floor."""
         playfield = self.playfield[copies]
         cx = np.clip(x, -playfield - 5, playfield + 5)
         cy = np.clip(y, -playfield - 5, playfield + 5)
@@ -279,11 +313,15 @@ class ViewRenderer:
         row0 = ((cy + playfield) * PIXELS_PER_UNIT + MAP_MARGIN).astype(np.float32)[:, None]
         cos = np.cos(angle).astype(np.float32)[:, None]
         sin = np.sin(angle).astype(np.float32)[:, None]
-        col = (col0 + cos * self.across_flat - sin * self.along_flat).astype(np.int32)
-        row = (row0 + sin * self.across_flat + cos * self.along_flat).astype(np.int32)
-        row *= self.width[copies, None]
+        across, along = self.across_cells, self.along_cells[:rows]
+        # A pixel's map column is col0 + cos * across - sin * along, its row row0 + sin * across +
+        # cos * along: the first two terms depend on its column alone, the last on its row, so they
+        # are formed once per column and per row (the float32 operations per pixel stay the same).
+        col = ((col0 + cos * across)[:, None, :] - (sin * along)[:, :, None]).astype(np.int32)
+        row = ((row0 + sin * across)[:, None, :] + (cos * along)[:, :, None]).astype(np.int32)
+        row *= self.width[copies, None, None]
         row += col
-        row += self.offset[copies, None]
+        row += self.offset[copies, None, None]
         return row
 
     def classes(self, car: dict, copies: np.ndarray) -> np.ndarray:
@@ -294,12 +332,42 @@ class ViewRenderer:
         velocity."""
         count = len(copies)
         camera = camera_angle(car["angle"], car["velocity"])
-        classes = self.flat[self._map_index(copies, car["x"], car["y"], camera)].reshape(count, STATE_SIZE, STATE_SIZE)
+        classes = self.flat.take(self._map_index(copies, car["x"], car["y"], camera))
         tilt = car["angle"] - camera  # the hull's angle in the view
-        self._draw_wheels(classes, car, tilt)
-        self._draw_hull(classes, tilt)
+        window = classes[:, CAR_ROWS, CAR_COLUMNS]
+        self._draw_wheels(window, car, tilt)
+        self._draw_hull(window, tilt)
         self._draw_indicators(classes, car)
         return classes
+
+    def green_means_of_views(self, car: dict, copies: np.ndarray) -> np.ndarray:
+        """The mean green of each copy's view [len(copies)] (arguments as for `classes`): equal, bit
+        for bit, to green_means(classes(car, copies)), without drawing whole class images.
+
+        The view's green sum is put together from parts: the maps' green levels under rows 0-83,
+        gathered from the green maps; in the car's window, the green of its classes drawn with wheels
+        and hull in place of their map's; and the green of the indicator bar (rows 84-95), drawn on its
+        own. Green levels are integers, summed exactly, so the mean is the one green_means forms. A copy
+        whose vertical indicator reaches above the bar (a speed over 210 or a wheel spinning at over
+        420 rad/s) is rendered whole instead."""
+        count = len(copies)
+        camera = camera_angle(car["angle"], car["velocity"])
+        tilt = car["angle"] - camera
+        index = self._map_index(copies, car["x"], car["y"], camera, BAR_TOP)
+        green = _sums(self.green_flat.take(index))
+        window = self.flat.take(index[:, CAR_ROWS, CAR_COLUMNS])
+        green -= _sums(GREEN_CHANNEL.take(window))
+        self._draw_wheels(window, car, tilt)
+        self._draw_hull(window, tilt)
+        green += _sums(GREEN_CHANNEL.take(window))
+        bar = np.empty((count, STATE_SIZE - BAR_TOP, STATE_SIZE), dtype=np.uint8)
+        reaching_above = self._draw_indicators(bar, car)
+        green += _sums(GREEN_CHANNEL.take(bar))
+        means = green / (STATE_SIZE * STATE_SIZE)
+        if reaching_above.any():
+            whole = {key: value[reaching_above] for key, value in car.items()}
+            means[reaching_above] = self.green_means(self.classes(whole, copies[reaching_above]))
+        return means
 
     @staticmethod
     def colours(classes: np.ndarray) -> np.ndarray:
@@ -319,32 +387,43 @@ class ViewRenderer:
         """uint8 RGB views [N, 3, 96, 96] of all copies (car states as for `classes`)."""
         return self.colours(self.classes(car, np.arange(len(car["x"]))))
 
-    def _draw_hull(self, classes: np.ndarray, tilt: np.ndarray) -> None:
-        """The hull's polygons, turned by `tilt` [N] (the hull's angle in the view)."""
+    def _draw_hull(self, window: np.ndarray, tilt: np.ndarray) -> None:
+        """The hull's polygons, turned by `tilt` [N] (the hull's angle in the view), into the car's
+        windows [N, 24, 16] of the class images."""
         cos, sin = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
         u = cos * self.hull_across + sin * self.hull_along  # the pixels in the hull's frame
         v = -sin * self.hull_across + cos * self.hull_along
         hull = np.zeros(u.shape, dtype=bool)
-        for polygon in self.hull_polygons:
-            hull |= _inside_convex(u, v, polygon)
+        for edges in self.hull_edges:
+            hull |= _inside_convex(u, v, edges)
         rows, columns = self.hull_pixels
-        classes[:, rows, columns] = np.where(hull, HULL, classes[:, rows, columns])
+        window[:, rows, columns] = np.where(hull, HULL, window[:, rows, columns])
 
-    def _draw_wheels(self, classes: np.ndarray, car: dict, tilt: np.ndarray) -> None:
-        """Each wheel as gymnasium draws it: a black rectangle at the wheel's pose (turned by `tilt`
-        [N], the hull's angle in the view), then a grey stripe between heights R cos(phase) and
-        R cos(phase + 1.2) while that part faces the viewer."""
+    def _draw_wheels(self, window: np.ndarray, car: dict, tilt: np.ndarray) -> None:
+        """Each wheel as gymnasium draws it, into the car's windows [N, 24, 16] of the class images: a
+        black rectangle at the wheel's pose (turned by `tilt` [N], the hull's angle in the view), then
+        a grey stripe between heights R cos(phase) and R cos(phase + 1.2) while that part faces the
+        viewer. Of the window's pixels only those of each wheel's block (see WHEEL_REACH) are tested:
+        no other pixel's centre can be inside the wheel."""
         cos_tilt, sin_tilt = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
         hull_x, hull_y = car["wheel_xy"][:, :, 0], car["wheel_xy"][:, :, 1]
         wheel_x = cos_tilt * hull_x - sin_tilt * hull_y  # the wheels' centres in the view's frame
         wheel_y = sin_tilt * hull_x + cos_tilt * hull_y
-        dx = self.car_across[None, None] - wheel_x[:, :, None, None]
-        dy = self.car_along[None, None] - wheel_y[:, :, None, None]
+        # The block's first row and column: window row r's centre is (11.5 - r) * 0.514 units ahead of
+        # the car's, column c's (c - 7.5) * 0.643 to its right. Parts of a block beyond the window
+        # repeat its edge pixels (a pixel drawn twice is drawn the same).
+        first_row = np.ceil((CAR_ROW - CAR_ROWS.start - 0.5) - (wheel_y + WHEEL_REACH) / UNITS_PER_PIXEL_Y)
+        first_column = np.ceil((wheel_x - WHEEL_REACH) / UNITS_PER_PIXEL_X + (CAR_COLUMN - CAR_COLUMNS.start - 0.5))
+        rows = np.clip(first_row.astype(np.int64)[..., None] + np.arange(WHEEL_BLOCK_ROWS), 0, window.shape[1] - 1)
+        columns = np.clip(first_column.astype(np.int64)[..., None] + np.arange(WHEEL_BLOCK_COLUMNS), 0, window.shape[2] - 1)
+        dx = self.car_across[0, columns][:, :, None, :] - wheel_x[:, :, None, None]  # [N, 4, 1, 2]
+        dy = self.car_along[rows, 0][:, :, :, None] - wheel_y[:, :, None, None]  # [N, 4, 3, 1]
         angle = car["wheel_angle"] + tilt[:, None]
         cos, sin = np.cos(angle)[..., None, None], np.sin(angle)[..., None, None]
         u = dx * cos + dy * sin
-        v = -dx * sin + dy * cos
-        wheel = (np.abs(u) <= WHEEL_HALF_WIDTH) & (np.abs(v) <= WHEEL_HALF_LENGTH)
+        v = dy * cos - dx * sin
+        across_wheel = np.abs(u) <= WHEEL_HALF_WIDTH
+        wheel = across_wheel & (np.abs(v) <= WHEEL_HALF_LENGTH)
         phase = car["wheel_phase"]
         s1, s2 = np.sin(phase), np.sin(phase + 1.2)
         c1 = np.where(s1 > 0, np.sign(np.cos(phase)), np.cos(phase))
@@ -352,38 +431,31 @@ class ViewRenderer:
         shown = ~((s1 > 0) & (s2 > 0))
         low = (np.minimum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
         high = (np.maximum(c1, c2) * WHEEL_HALF_LENGTH)[..., None, None]
-        stripe = shown[..., None, None] & (np.abs(u) <= WHEEL_HALF_WIDTH) & (v >= low) & (v <= high)
-        window = classes[:, CAR_ROWS, CAR_COLUMNS]
-        window[wheel.any(axis=1)] = WHEEL
-        window[stripe.any(axis=1)] = WHEEL_STRIPE
+        stripe = shown[..., None, None] & across_wheel & (v >= low) & (v <= high)
+        pixels = np.broadcast_arrays(np.arange(len(window))[:, None, None, None], rows[:, :, :, None], columns[:, :, None, :])
+        window[tuple(index[wheel] for index in pixels)] = WHEEL
+        window[tuple(index[stripe] for index in pixels)] = WHEEL_STRIPE
 
-    def _draw_indicators(self, classes: np.ndarray, car: dict) -> None:
-        """Gymnasium's bar: black bottom eighth; vertical bars (speed, ABS) rise from h above the bottom
-        by h * value; horizontal bars (steering, gyroscope) extend from their place by s * value
-        (s = h = 96 / 40 pixels)."""
+    def _draw_indicators(self, classes: np.ndarray, car: dict) -> np.ndarray:
+        """Gymnasium's bar, into the bottom rows [N, R, 96] of class images (R = 96: whole images):
+        black bottom eighth; vertical bars (speed, ABS) rise from h above the bottom by h * value;
+        horizontal bars (steering, gyroscope) extend from their place by s * value (s = h = 96 / 40
+        pixels). Returns which copies [N] have a vertical bar reaching above the rows given."""
         unit = STATE_SIZE / 40.0
         bottom = STATE_SIZE
-        classes[:, int(bottom - 5 * unit) :, :] = BAR  # rows 84-95: centres inside [H - 5h, H]
-        vertical = [
-            (5, 0.02 * car["speed"], SPEED),
-            (7, 0.01 * car["wheel_omega"][:, 0], ABS_FRONT),
-            (8, 0.01 * car["wheel_omega"][:, 1], ABS_FRONT),
-            (9, 0.01 * car["wheel_omega"][:, 2], ABS_REAR),
-            (10, 0.01 * car["wheel_omega"][:, 3], ABS_REAR),
-        ]
+        top = STATE_SIZE - classes.shape[1]  # the first row given
+        classes[:, BAR_TOP - top :, :] = BAR  # rows 84-95: centres inside [H - 5h, H]
         centres = self.bar_centres
-        for place, value, cls in vertical:
-            cols = (centres >= place * unit) & (centres <= (place + 1) * unit)
-            base, tip = bottom - unit, bottom - unit - unit * value
-            lit = (centres[None, :] >= np.minimum(base, tip)[:, None]) & (centres[None, :] <= np.maximum(base, tip)[:, None])
-            block = classes[:, :, cols]
-            block[lit] = cls
-            classes[:, :, cols] = block
-        band = (centres >= bottom - 4 * unit) & (centres <= bottom - 2 * unit)
+        values = np.column_stack([0.02 * car["speed"], 0.01 * car["wheel_omega"]])  # [N, 5], in bar order
+        base, tip = bottom - unit, bottom - unit - unit * values
+        lit = (centres >= np.minimum(base, tip)[..., None]) & (centres <= np.maximum(base, tip)[..., None])  # [N, 5, rows]
+        reaching_above = lit[:, :, :top].any(axis=(1, 2))
+        lit = lit[:, self.vertical_bar, top:].transpose(0, 2, 1)  # [N, R, columns of the bars]
+        classes[:, :, self.vertical_columns] = np.where(lit, self.vertical_classes, classes[:, :, self.vertical_columns])
         horizontal = [(20, -10.0 * car["steering"], STEERING), (30, -0.8 * car["angular_velocity"], GYROSCOPE)]
+        band = classes[:, self.horizontal_rows.start - top : self.horizontal_rows.stop - top, :]
         for place, value, cls in horizontal:
             start, end = place * unit, (place + value) * unit
-            lit = (centres[None, :] >= np.minimum(start, end)[:, None]) & (centres[None, :] <= np.maximum(start, end)[:, None])
-            block = classes[:, band, :]
-            block[np.broadcast_to(lit[:, None, :], block.shape)] = cls
-            classes[:, band, :] = block
+            lit = (centres >= np.minimum(start, end)[:, None]) & (centres <= np.maximum(start, end)[:, None])
+            band[np.broadcast_to(lit[:, None, :], band.shape)] = cls
+        return reaching_above

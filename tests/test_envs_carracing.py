@@ -10,7 +10,26 @@ import torch
 
 import envs.carracing as cr
 from envs.carracing import VANILLA, CarRacingEnv, CarRacingStudent, CarRacingTeacher, CarRacingTeacherMDP, designed_levels, fixed_levels
-from envs.carracing_render import BACKGROUND, GRASS, HULL, PALETTE, ROAD, ViewRenderer, class_map
+from envs.carracing_render import (
+    ABS_FRONT,
+    ABS_REAR,
+    BACKGROUND,
+    BAR_TOP,
+    CAR_COLUMNS,
+    CAR_ROWS,
+    GRASS,
+    HULL,
+    PALETTE,
+    ROAD,
+    SPEED,
+    WHEEL,
+    WHEEL_HALF_LENGTH,
+    WHEEL_HALF_WIDTH,
+    WHEEL_STRIPE,
+    ViewRenderer,
+    _inside_convex,
+    class_map,
+)
 from envs.carracing_tracks import (
     PLAYFIELD,
     SKETCH_RATIO,
@@ -306,6 +325,121 @@ def test_view_rotates_with_the_car():
     _, here = render_on_ring(150.0, 0.0, 0.0)
     _, there = render_on_ring(0.0, 150.0, math.pi / 2)
     assert np.mean((here == ROAD) == (there == ROAD)) > 0.99
+
+
+def random_car_states(env, rng, n):
+    """(copies [n], car states as ViewRenderer.classes takes them) of n random cars on env's tracks:
+    on and near the road, anywhere on the grass, about the playfield's edge; turned any way, sliding,
+    steering and spinning hard; wheels in every phase, some so fast that their indicator rises above
+    the bar."""
+    copies = rng.integers(0, env.num_envs, n)
+    playfield = env.playfield[copies][:, None]
+    on_road = np.stack([env.tracks[c].xy[rng.integers(len(env.tracks[c]))] for c in copies]) + rng.normal(0, 8, (n, 2))
+    anywhere = rng.uniform(-1, 1, (n, 2)) * playfield
+    about_the_edge = np.sign(anywhere) * (playfield + rng.uniform(-4, 4, (n, 2)))
+    xy = np.choose(rng.integers(0, 3, (n, 1)), [on_road, anywhere, about_the_edge])
+    upright = np.array([[-1.1, 1.6], [1.1, 1.6], [-1.1, -1.64], [1.1, -1.64]])
+    car = {
+        "x": xy[:, 0],
+        "y": xy[:, 1],
+        "angle": rng.uniform(-10, 10, n),
+        "velocity": rng.normal(0, 1, (n, 2)) * rng.choice([0.2, 2.0, 40.0], (n, 1)),  # camera on the hull or the velocity
+        "wheel_xy": upright + rng.normal(0, 0.05, (n, 4, 2)),
+        "wheel_angle": rng.uniform(-0.6, 0.6, (n, 4)),
+        "wheel_phase": rng.uniform(-50, 50, (n, 4)),
+        "speed": rng.uniform(0, 120, n),
+        "wheel_omega": rng.normal(0, 100, (n, 4)) * rng.choice([1.0, 8.0], (n, 1), p=[0.8, 0.2]),
+        "steering": rng.uniform(-0.45, 0.45, n),
+        "angular_velocity": rng.normal(0, 3, n) * rng.choice([1.0, 10.0], n),
+    }
+    return copies, car
+
+
+def test_green_means_of_views_equal_those_of_whole_views():
+    # The grass test of training's intermediate frames, bit for bit the mean of the whole rendered view.
+    rng = np.random.default_rng(0)
+    env = make_env(4)
+    means, indicator_above_bar = [], []
+    for levels in (env.random_levels(4, rng), env.random_sketch_levels(4, rng)):
+        env.reset(levels)
+        for _ in range(20):
+            copies, car = random_car_states(env, rng, 16)
+            classes = env.renderer.classes(car, copies)
+            whole = env.renderer.green_means(classes)
+            assert np.array_equal(env.renderer.green_means_of_views(car, copies), whole)
+            means.append(whole)
+            indicator_above_bar.append(np.isin(classes[:, :BAR_TOP], [SPEED, ABS_FRONT, ABS_REAR]).any(axis=(1, 2)))
+    means, indicator_above_bar = np.concatenate(means), np.concatenate(indicator_above_bar)
+    on_grass = means > cr.GRASS_GREEN_MEAN
+    assert on_grass.sum() >= 5 and (~on_grass).sum() >= 5 and np.sum(np.abs(means - cr.GRASS_GREEN_MEAN) < 1) >= 5  # both sides, close by
+    assert 0 < np.mean(indicator_above_bar) < 0.5
+
+
+def test_the_hull_is_inside_the_cars_window_however_turned():
+    # The hull is drawn into the car's window only: turned any way, none of it lies outside.
+    renderer = ViewRenderer()
+    for tilt in np.linspace(-math.pi, math.pi, 97):
+        u = math.cos(tilt) * renderer.across + math.sin(tilt) * renderer.along  # the whole view, in the hull's frame
+        v = -math.sin(tilt) * renderer.across + math.cos(tilt) * renderer.along
+        hull = np.any([_inside_convex(u, v, edges) for edges in renderer.hull_edges], axis=0)
+        in_window = np.zeros_like(hull)
+        in_window[CAR_ROWS, CAR_COLUMNS] = True
+        assert hull.sum() > 10 and not np.any(hull & ~in_window)
+
+
+def test_wheels_tested_in_their_blocks_are_those_of_the_whole_window():
+    # The renderer tests only a block of pixels around each wheel; by definition every pixel of the
+    # car's window whose centre is inside a wheel is drawn. Wheels anywhere, some beyond the window.
+    rng = np.random.default_rng(2)
+    renderer = ViewRenderer()
+    n = 200
+    upright = np.array([[-1.1, 1.6], [1.1, 1.6], [-1.1, -1.64], [1.1, -1.64]])
+    car = {
+        "wheel_xy": upright * rng.uniform(0.5, 3, (n, 1, 1)) + rng.normal(0, 0.5, (n, 4, 2)),
+        "wheel_angle": rng.uniform(-1, 1, (n, 4)),
+        "wheel_phase": rng.uniform(-50, 50, (n, 4)),
+    }
+    tilt = rng.uniform(-4, 4, n)
+    drawn = np.zeros((n,) + renderer.car_across.shape, dtype=np.uint8)
+    renderer._draw_wheels(drawn, car, tilt)
+    cos_tilt, sin_tilt = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
+    x, y = car["wheel_xy"][..., 0], car["wheel_xy"][..., 1]
+    dx = renderer.car_across - (cos_tilt * x - sin_tilt * y)[..., None, None]  # [n, 4, rows, columns]
+    dy = renderer.car_along - (sin_tilt * x + cos_tilt * y)[..., None, None]
+    angle = car["wheel_angle"] + tilt[:, None]
+    cos, sin = np.cos(angle)[..., None, None], np.sin(angle)[..., None, None]
+    inside = (np.abs(dx * cos + dy * sin) <= WHEEL_HALF_WIDTH) & (np.abs(dy * cos - dx * sin) <= WHEEL_HALF_LENGTH)
+    assert np.array_equal(np.isin(drawn, [WHEEL, WHEEL_STRIPE]), inside.any(axis=1))
+    assert np.mean(inside.any(axis=1)) > 0.01 and np.any(drawn == WHEEL_STRIPE)
+
+
+def test_training_rewards_equal_those_of_whole_rendered_frames():
+    # Training tests intermediate frames for grass without rendering them: the rewards, ends and
+    # observations are those of an env that renders every frame whole (the grass made lighter, so
+    # that views off the road are "on grass").
+    levels = designed_levels(np.stack([CELLS, np.roll(CELLS, 4), np.roll(CELLS, 8)]))
+    cheap, whole = make_env(3, training=True), make_env(3, training=True)
+    seen = []
+
+    def whole_views(car, copies):
+        means = whole.renderer.green_means(whole.renderer.classes(car, copies))
+        seen.append(means)
+        return means
+
+    whole.renderer.green_means_of_views = whole_views
+    for env in (cheap, whole):
+        env.reset(levels)
+        env.renderer.set_maps([np.where(m == BACKGROUND, GRASS, m) for m in env.maps], env.playfield)
+    rng = np.random.default_rng(1)
+    ended = 0
+    for _ in range(40):
+        action = np.column_stack([rng.random(3), rng.uniform(0.3, 1, 3), rng.uniform(0, 0.2, 3)])
+        first, second = cheap.step(action), whole.step(action)
+        for a, b in zip(first[:4], second[:4]):
+            assert np.array_equal(a["image"] if isinstance(a, dict) else a, b["image"] if isinstance(b, dict) else b)
+        ended += first[2].sum()
+    seen = np.concatenate(seen)
+    assert 0.05 < np.mean(seen > cr.GRASS_GREEN_MEAN) < 0.95 and ended > 0
 
 
 def test_env_observation_layout_and_determinism():
