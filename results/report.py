@@ -101,6 +101,11 @@ def cell(mean: float, se: float, seeds: int) -> str:
     return f"{mean:.2f} ± {se:.2f}" if seeds > 1 else f"{mean:.2f}"
 
 
+def with_interval(value: float, interval: list, seeds: int) -> str:
+    """value [95% CI]; the value alone from a single seed, whose bootstrap has nothing to resample."""
+    return f"{value:.2f} [{interval[0]:.2f}, {interval[1]:.2f}]" if seeds > 1 else f"{value:.2f}"
+
+
 def table(summary: dict) -> str:
     """Markdown: ours (mean ± standard error over seeds per maze, the mean, IQM and optimality gap with
     their intervals), then the paper's numbers for the experiments it reports."""
@@ -109,9 +114,9 @@ def table(summary: dict) -> str:
     for maze in MAZES:
         lines.append(f"| {maze} | " + " | ".join(cell(summary[n]["per_level"][maze]["mean"], summary[n]["per_level"][maze]["se"], len(summary[n]["seeds"])) for n in names) + " |")
     lines.append("| **mean** | " + " | ".join(f"**{cell(summary[n]['mean_solved_rate'], summary[n]['se'], len(summary[n]['seeds']))}**" for n in names) + " |")
-    lines.append("| IQM [95% CI] | " + " | ".join(f"{summary[n]['iqm']:.2f} [{summary[n]['iqm_ci'][0]:.2f}, {summary[n]['iqm_ci'][1]:.2f}]" for n in names) + " |")
-    lines.append("| optimality gap [95% CI] | " + " | ".join(
-        f"{summary[n]['optimality_gap']:.2f} [{summary[n]['optimality_gap_ci'][0]:.2f}, {summary[n]['optimality_gap_ci'][1]:.2f}]" for n in names) + " |")
+    for label, key in (("IQM", "iqm"), ("optimality gap", "optimality_gap")):
+        lines.append(f"| {label} [95% CI] | " + " | ".join(
+            with_interval(summary[n][key], summary[n][f"{key}_ci"], len(summary[n]["seeds"])) for n in names) + " |")
     lines.append("| seeds | " + " | ".join(str(len(summary[n]["seeds"])) for n in names) + " |")
     paper = [n for n in EXPERIMENTS if n in PAPER]
     lines += ["", "The paper's solved rates (maze 0-60, 250M steps, 5 seeds; mean ± standard error):", "",

@@ -4,6 +4,7 @@ table match numbers worked out by hand, and every figure is written."""
 import csv
 import json
 import os
+import re
 
 import pytest
 
@@ -57,6 +58,19 @@ def test_report_on_hand_worked_runs(tmp_path):
     assert "| **mean** | 0.61 ± 0.03 | 0.21 ± 0.07 |" in table  # the paper's ACCEL and PAIRED
     for name in ("solved_per_maze.png", "aggregates.png", "training.png", "true_regret.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
+
+
+def test_a_single_seed_shows_its_values_without_spread(tmp_path):
+    """One seed has no standard error and no bootstrap interval: the table gives the values alone,
+    while two seeds give both."""
+    fake_run(tmp_path / "robust_plr" / "1", {"*": 0.2}, teacher=False)
+    fake_run(tmp_path / "robust_plr" / "2", {"*": 0.6}, teacher=False)
+    fake_run(tmp_path / "paired" / "1", {"*": 0.5}, teacher=True)
+    report.main([str(tmp_path)])
+    table = (tmp_path / "table.md").read_text()
+    assert "| **mean** | **0.40 ± 0.20** | **0.50** |" in table
+    assert re.search(r"\| IQM \[95% CI\] \| 0\.40 \[0\.\d\d, 0\.\d\d\] \| 0\.50 \|", table)
+    assert re.search(r"\| optimality gap \[95% CI\] \| 0\.60 \[0\.\d\d, 0\.\d\d\] \| 0\.50 \|", table)
 
 
 def test_report_without_runs_is_one_error_line(tmp_path, capsys):
