@@ -11,14 +11,18 @@ command line per experiment:
     seeds = [1, 2, 3]
     parallel = 2          # runs at a time: local lanes, or SLURM's array parallelism
     threads = 1           # torch threads per run (keep parallel x threads within the cores)
-    timeout_hours = 48
+    timeout_hours = 48    # per run: a run still going then is stopped (its checkpoint stays for a relaunch)
+    later = ["dr"]        # optional: these experiments' seeds after the first run after all the others
     [experiments]
     dr = ["plr.py", "--env", "maze", "--replay-prob", "0", "--total-timesteps", "10000000"]
 
 Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scripts' own run directory,
 with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
 resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
-continued by launching it again. A run in progress holds a lock file (<workdir>/locks/), so a second
+continued by launching it again. Runs go in the file's order, seed by seed (the first seed of every
+experiment, then the second, ...), except that `later` experiments' other seeds wait for all the rest.
+Locally, each of the `parallel` lanes takes the next run no lane has taken, so a long run does not hold
+up a lane's queue; a run that fails is reported and the rest go on. A run in progress holds a lock file (<workdir>/locks/), so a second
 launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv and
 eval.json to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
 plus the final student's weights of seed 1 as agent.pt.
@@ -53,8 +57,8 @@ def load_sweep(path: str) -> dict:
         fail(f"no sweep file {path}")
     except tomllib.TOMLDecodeError as error:
         fail(f"{path} is not valid TOML: {error}")
-    sweep = {"parallel": 1, "threads": 1, "timeout_hours": 48, "slurm": {}, **sweep}
-    unknown = set(sweep) - {"seeds", "parallel", "threads", "timeout_hours", "experiments", "slurm"}
+    sweep = {"parallel": 1, "threads": 1, "timeout_hours": 48, "later": [], "slurm": {}, **sweep}
+    unknown = set(sweep) - {"seeds", "parallel", "threads", "timeout_hours", "later", "experiments", "slurm"}
     if unknown:
         fail(f"{path}: unknown keys {sorted(unknown)}")
     seeds, experiments = sweep.get("seeds"), sweep.get("experiments")
@@ -71,6 +75,8 @@ def load_sweep(path: str) -> dict:
             fail(f"{path}: experiment {name!r} must give --env")
         if {"--seed", "--exp-name", "--resume"} & set(command):
             fail(f"{path}: experiment {name!r} must not set --seed, --exp-name or --resume (the sweep does)")
+    if not (isinstance(sweep["later"], list) and set(sweep["later"]) <= set(experiments)):
+        fail(f"{path}: later must list experiments of [experiments]")
     for key in ("parallel", "threads", "timeout_hours"):
         if not (isinstance(sweep[key], (int, float)) and sweep[key] > 0):
             fail(f"{path}: {key} must be positive")
@@ -115,41 +121,53 @@ def run_unlocked(job: dict, env: str) -> str:
     os.makedirs(os.path.join(workdir, "logs"), exist_ok=True)
     threads = str(job["threads"])
     with open(os.path.join(workdir, "logs", f"{job['experiment']}_{job['seed']}.log"), "a") as log:
-        result = subprocess.run([sys.executable, *arguments], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
-                                env={**os.environ, "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads})
+        try:
+            result = subprocess.run([sys.executable, *arguments], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                                    env={**os.environ, "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads},
+                                    timeout=job["timeout_hours"] * 3600)
+        except subprocess.TimeoutExpired:  # the run is killed; its last checkpoint stays for a relaunch
+            raise RuntimeError(f"{action}: stopped after its timeout of {job['timeout_hours']} h; launch again to resume it")
     if result.returncode != 0:
         raise RuntimeError(f"{action}: exit status {result.returncode} (see logs/{job['experiment']}_{job['seed']}.log)")
     return action
 
 
 def run_lane(jobs: list[dict]) -> list[str]:
-    """A local lane: its runs one after another."""
-    return [run_one(job) for job in jobs]
+    """A local lane: goes down the whole queue, running each run that no other lane holds or finished.
+    A run that fails is reported ("failed: ...") and the lane goes on to the next."""
+    done = []
+    for job in jobs:
+        try:
+            done.append(run_one(job))
+        except Exception as error:
+            done.append(f"failed: {error}")
+    return done
 
 
 def launch(sweep: dict, jobs: list[dict], cluster: str, workdir: str) -> None:
     import submitit
 
     executor = submitit.AutoExecutor(folder=os.path.join(workdir, "submitit"), cluster=cluster)
-    timeout_min = int(sweep["timeout_hours"] * 60)
+    timeout_min = int(sweep["timeout_hours"] * 60)  # per run: a SLURM job is one run; a local run times itself
     if cluster == "slurm":
         executor.update_parameters(timeout_min=timeout_min, cpus_per_task=int(sweep["threads"]),
                                    slurm_array_parallelism=int(sweep["parallel"]),
                                    **{f"slurm_{k}": v for k, v in sweep["slurm"].items()})
         submitted = executor.map_array(run_one, jobs)
-    else:  # the local executor starts every job at once: `parallel` lanes, each running its share in turn
-        executor.update_parameters(timeout_min=timeout_min)
-        lanes = [jobs[i :: int(sweep["parallel"])] for i in range(int(sweep["parallel"]))]
-        submitted = [executor.submit(run_lane, lane) for lane in lanes if lane]
+    else:  # `parallel` local lanes share one queue; the lane's own limit covers all its runs' timeouts
+        executor.update_parameters(timeout_min=timeout_min * len(jobs) + 1)
+        lanes = min(int(sweep["parallel"]), len(jobs))
+        submitted = [executor.submit(run_lane, jobs) for _ in range(lanes)]
     print(f"{len(jobs)} runs in {len(submitted)} {cluster} jobs; logs in {os.path.join(workdir, 'logs')}", flush=True)
     failures = 0
     for job in submitted:  # the local jobs live as long as this process: wait for them
         try:
             result = job.result()
-            print("\n".join(result) if isinstance(result, list) else result, flush=True)
-        except Exception as error:  # a failed run does not stop the others
-            failures += 1
-            print(f"failed: {error}", flush=True)
+            results = result if isinstance(result, list) else [result]
+        except Exception as error:  # a SLURM run that failed; the others go on
+            results = [f"failed: {error}"]
+        failures += sum(line.startswith("failed: ") for line in results)
+        print("\n".join(results), flush=True)
     if failures:
         sys.exit(1)
 
@@ -188,8 +206,11 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     sweep = load_sweep(args.sweep)
     workdir = os.path.abspath(args.workdir)
-    jobs = [{"experiment": name, "seed": seed, "command": command, "threads": sweep["threads"], "workdir": workdir}
+    jobs = [{"experiment": name, "seed": seed, "command": command, "threads": sweep["threads"], "workdir": workdir,
+             "timeout_hours": sweep["timeout_hours"]}
             for seed in sweep["seeds"] for name, command in sweep["experiments"].items()]
+    first_seed = sweep["seeds"][0]
+    jobs.sort(key=lambda job: job["seed"] != first_seed and job["experiment"] in sweep["later"])  # stable
     if args.collect:
         collect(sweep, jobs, args.collect)
     elif args.dry_run:

@@ -106,3 +106,44 @@ def test_a_run_in_progress_elsewhere_is_skipped(tmp_path):
         result = sweep(path, "--workdir", str(tmp_path))
     assert result.returncode == 0 and "running elsewhere: dr seed 1" in result.stdout, result.stdout + result.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_failed_run_is_reported_and_the_rest_of_the_queue_goes_on(tmp_path):
+    """One lane, three runs: the first fails at once (a bad option), the two after it still run."""
+    path = sweep_file(tmp_path / "sweep.toml", {"broken": ["plr.py", *TINY, "--no-such-option"],
+                                                "dr": ["plr.py", *TINY, "--replay-prob", "0"],
+                                                "robust": ["plr.py", *TINY]})
+    result = sweep(path, "--workdir", str(tmp_path))
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "failed: ran broken seed 1" in result.stdout
+    assert "ran dr seed 1" in result.stdout and "ran robust seed 1" in result.stdout
+    for name in ("dr", "robust"):
+        (run,) = (tmp_path / "runs").glob(f"maze__{name}__1__*")
+        assert (run / "eval.json").is_file()
+
+
+def test_the_timeout_applies_to_each_run(tmp_path):
+    """timeout_hours bounds each run, not the lane: with a limit of ~2 s, a run that cannot finish in time is
+    stopped and reported, and the next run of the same lane still starts (and is stopped in turn)."""
+    long = ["plr.py", *TINY[:-6], "--total-timesteps", "10000000", "--eval-interval", "1000", "--checkpoint-interval", "1"]
+    path = sweep_file(tmp_path / "sweep.toml", {"first": long, "second": long})
+    text = (tmp_path / "sweep.toml").read_text().replace("timeout_hours = 1", "timeout_hours = 0.0006")
+    (tmp_path / "sweep.toml").write_text(text)
+    result = sweep(path, "--workdir", str(tmp_path))
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert result.stdout.count("stopped after its timeout") == 2, result.stdout
+    assert "ran second seed 1: stopped" in result.stdout and (tmp_path / "logs" / "second_1.log").is_file()
+
+
+def test_two_lanes_share_one_queue_in_order(tmp_path):
+    """Two lanes take the queue's runs in its order, each run once; `later` puts an experiment's other seeds
+    last (checked in the dry run's order)."""
+    path = sweep_file(tmp_path / "sweep.toml", {"a": ["plr.py", *TINY], "b": ["plr.py", *TINY, "--replay-prob", "0"]},
+                      seeds=(1, 2), parallel=2)
+    (tmp_path / "sweep.toml").write_text((tmp_path / "sweep.toml").read_text().replace("[experiments]", 'later = ["a"]\n[experiments]'))
+    order = [line.split(":")[0] for line in sweep(path, "--dry-run").stdout.splitlines()]
+    assert order == ["a seed 1", "b seed 1", "b seed 2", "a seed 2"]
+    result = sweep(path, "--workdir", str(tmp_path))
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert all(result.stdout.count(f"ran {run}") == 1 for run in order), result.stdout
+    assert len(list((tmp_path / "runs").glob("maze__*"))) == 4
