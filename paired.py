@@ -20,10 +20,6 @@ import time
 from dataclasses import dataclass
 from typing import Literal, Optional
 
-# Before torch loads OpenMP: idle threads sleep instead of spinning, which on a machine busy with other work
-# made two threads wait on each other at every op (CarRacing several times slower; docs/performance.md).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 import numpy as np
 import torch
 import torch.nn as nn
