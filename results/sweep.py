@@ -22,7 +22,8 @@ resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a 
 continued by launching it again. Runs go in the file's order, seed by seed (the first seed of every
 experiment, then the second, ...), except that `later` experiments' other seeds wait for all the rest.
 Locally, each of the `parallel` lanes takes the next run no lane has taken, so a long run does not hold
-up a lane's queue; a run that fails is reported and the rest go on. A run in progress holds a lock file (<workdir>/locks/), so a second
+up a lane's queue; a run that fails is reported and the rest go on. To stop a sweep, signal its process
+group (`kill -- -PGID`): a run killed by a signal ends its lane, and launching again resumes it. A run in progress holds a lock file (<workdir>/locks/), so a second
 launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv and
 eval.json to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
 plus the final student's weights of seed 1 as agent.pt.
@@ -89,6 +90,10 @@ def run_directory(workdir: str, env: str, experiment: str, seed: int) -> str | N
     return found[-1] if found else None
 
 
+class StopSweep(BaseException):
+    """A run was killed by a signal (the sweep is being stopped): its lane ends rather than go on."""
+
+
 def run_one(job: dict) -> str:
     """One run, continued where it stands: skipped if finished or if another launcher is running it
     (it holds the run's lock file), resumed from its checkpoint if cut off, else started (a directory
@@ -127,6 +132,8 @@ def run_unlocked(job: dict, env: str) -> str:
                                     timeout=job["timeout_hours"] * 3600)
         except subprocess.TimeoutExpired:  # the run is killed; its last checkpoint stays for a relaunch
             raise RuntimeError(f"{action}: stopped after its timeout of {job['timeout_hours']} h; launch again to resume it")
+    if result.returncode < 0:  # killed by a signal: the sweep is being stopped, not a run failing
+        raise StopSweep(f"{action}: stopped by signal {-result.returncode}; launch again to resume it")
     if result.returncode != 0:
         raise RuntimeError(f"{action}: exit status {result.returncode} (see logs/{job['experiment']}_{job['seed']}.log)")
     return action
@@ -134,7 +141,8 @@ def run_unlocked(job: dict, env: str) -> str:
 
 def run_lane(jobs: list[dict]) -> list[str]:
     """A local lane: goes down the whole queue, running each run that no other lane holds or finished.
-    A run that fails is reported ("failed: ...") and the lane goes on to the next."""
+    A run that fails is reported ("failed: ...") and the lane goes on to the next; one killed by a signal
+    (the sweep being stopped) ends the lane."""
     done = []
     for job in jobs:
         try:

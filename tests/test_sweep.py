@@ -147,3 +147,21 @@ def test_two_lanes_share_one_queue_in_order(tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     assert all(result.stdout.count(f"ran {run}") == 1 for run in order), result.stdout
     assert len(list((tmp_path / "runs").glob("maze__*"))) == 4
+
+
+def test_a_run_killed_by_a_signal_ends_its_lane(tmp_path):
+    """Stopping a run with SIGTERM (as stopping the sweep does) ends its lane: the next run does not start,
+    as it would after a run that failed."""
+    long = ["plr.py", *TINY[:-6], "--total-timesteps", "10000000", "--eval-interval", "1000", "--checkpoint-interval", "1"]
+    path = sweep_file(tmp_path / "sweep.toml", {"first": long, "second": long})
+    process = subprocess.Popen([sys.executable, "-m", "results.sweep", path, "--workdir", str(tmp_path)], cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and not list(tmp_path.glob("runs/maze__first__1__*/metrics.csv")):
+        time.sleep(0.1)
+    run = subprocess.run(["pgrep", "-f", f"plr.py .*--exp-name first"], capture_output=True, text=True).stdout.split()
+    assert len(run) == 1
+    os.kill(int(run[0]), signal.SIGTERM)
+    output, _ = process.communicate(timeout=120)
+    assert process.returncode == 1 and "stopped by signal 15" in output, output
+    assert not (tmp_path / "logs" / "second_1.log").exists()
