@@ -1,8 +1,11 @@
-"""The maze reproduction's numbers and figures, regenerated from the committed run outputs alone.
+"""The reproductions' numbers and figures, regenerated from the committed run outputs alone.
 
     python -m results.report results/maze
+    python -m results.report results/carracing    # or results/walker: see results/report_continuous.py
 
-reads DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
+The env is the runs' own (their args.json); CarRacing and the walker are reported by
+results/report_continuous.py, with the helpers of this module. The maze report reads
+DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
 summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
 training.png (c), levels.png (d) and true_regret.png (e: each algorithm's own score, its estimate of
 regret, beside the true regret of the training levels and the rank correlation of the two, for the runs
@@ -25,9 +28,10 @@ import numpy as np  # noqa: E402
 
 from envs.evaluation import aggregate  # noqa: E402
 
-# The experiments in the order of the paper's tables, with their names there.
+# The experiments in the order of the paper's tables, with their names there (the maze's UniBC, CarRacing's
+# BiBC). An experiment keeps its colour in every env's figures.
 EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired": "PAIRED", "paired_hient": "PAIRED+HiEnt",
-               "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo"}
+               "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo", "paired_bibc_hient": "PAIRED+BiBC+HiEnt"}
 MAZES = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
          "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
 # The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates):
@@ -96,14 +100,14 @@ def summarize(runs: dict) -> dict:
     return summary
 
 
-def cell(mean: float, se: float, seeds: int) -> str:
+def cell(mean: float, se: float, seeds: int, digits: int = 2) -> str:
     """mean ± standard error; the mean alone from a single seed, which has no standard error."""
-    return f"{mean:.2f} ± {se:.2f}" if seeds > 1 else f"{mean:.2f}"
+    return f"{mean:.{digits}f} ± {se:.{digits}f}" if seeds > 1 else f"{mean:.{digits}f}"
 
 
-def with_interval(value: float, interval: list, seeds: int) -> str:
+def with_interval(value: float, interval: list, seeds: int, digits: int = 2) -> str:
     """value [95% CI]; the value alone from a single seed, whose bootstrap has nothing to resample."""
-    return f"{value:.2f} [{interval[0]:.2f}, {interval[1]:.2f}]" if seeds > 1 else f"{value:.2f}"
+    return f"{value:.{digits}f} [{interval[0]:.{digits}f}, {interval[1]:.{digits}f}]" if seeds > 1 else f"{value:.{digits}f}"
 
 
 def table(summary: dict) -> str:
@@ -157,21 +161,27 @@ def plot_solved_per_maze(summary: dict, path: str) -> None:
     plt.close(fig)
 
 
-def plot_aggregates(summary: dict, path: str) -> None:
-    """(b) IQM and optimality gap of the solved rate with their 95% bootstrap intervals."""
+def plot_aggregates(summary: dict, path: str, panels=(("iqm", "IQM (higher is better)"), ("optimality_gap", "optimality gap (lower is better)")),
+                    unit="solved rate", limits=(0, 1), title="Aggregates over seeds and mazes (bars: 95% stratified-bootstrap intervals)") -> None:
+    """(b) Aggregate statistics (each summary key of `panels` with its key + "_ci") with their 95%
+    bootstrap intervals: by default IQM and optimality gap of the solved rate."""
     names, colour = list(summary), colours(summary)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 0.45 * len(names) + 1.4), sharey=True)
-    for ax, key, title in zip(axes, ("iqm", "optimality_gap"), ("IQM (higher is better)", "optimality gap (lower is better)")):
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 0.45 * len(names) + 1.4), sharey=True)
+    for ax, (key, title_of_panel) in zip(axes, panels):
         for y, name in enumerate(names):
             low, high = summary[name][key + "_ci"]
             ax.barh(y, high - low, left=low, height=0.6, color=colour[name], alpha=0.7)
             ax.plot([summary[name][key]] * 2, [y - 0.3, y + 0.3], color="black")
-        ax.set_xlim(0, 1)
-        ax.set_title(title)
-        ax.set_xlabel("solved rate")
+        if limits:
+            ax.set_xlim(*limits)
+        else:  # room around the bars, whose edges would otherwise bound the axis
+            ax.use_sticky_edges = False
+            ax.margins(x=0.1)
+        ax.set_title(title_of_panel)
+        ax.set_xlabel(unit)
     axes[0].set_yticks(range(len(names)), [EXPERIMENTS.get(n, n) for n in names])
     axes[0].invert_yaxis()
-    fig.suptitle("Aggregates over seeds and mazes (bars: 95% stratified-bootstrap intervals)")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -194,14 +204,19 @@ def curve(rows: list[dict], columns: tuple, smooth: bool):
 
 
 def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailing mean over {smoothing} updates except "
-                  "validation; band: ± s.e. over seeds)") -> None:
+                  "validation; band: ± s.e. over seeds)", rows: int = 1) -> None:
     """(c) Training curves, a band of ± one standard error over seeds around their mean, one quantity per
-    panel on its own axis."""
+    panel on its own axis, the panels in `rows` rows. The validation columns (val_*), logged every few
+    updates, are drawn as logged; the others as a trailing mean."""
     colour = colours(runs)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6))
+    per_row = -(-len(panels) // rows)
+    fig, axes = plt.subplots(rows, per_row, figsize=(4.2 * per_row, 3.6 * rows), squeeze=False)
+    axes = axes.ravel()
+    for ax in axes[len(panels):]:
+        ax.axis("off")
     for ax, (title_of_panel, columns, limits) in zip(axes, panels):
         for name, seeds in runs.items():
-            curves = [c for c in (curve(s["metrics"], columns, smooth=columns != ("val_solved_rate",)) for s in seeds.values()) if c]
+            curves = [c for c in (curve(s["metrics"], columns, smooth=not columns[0].startswith("val_")) for s in seeds.values()) if c]
             if not curves:
                 continue
             end = min(c[0][-1] for c in curves)
@@ -258,14 +273,31 @@ def plot_levels(runs: dict, path: str) -> None:
     plt.close(fig)
 
 
+def env_of(runs: dict) -> str:
+    """The env all the runs trained on (their args.json); fails on runs of several envs."""
+    found = {run["args"].get("env") for seeds in runs.values() for run in seeds.values()}
+    if None in found:
+        fail("a run's args.json names no env")
+    if len(found) > 1:
+        fail(f"the runs are of several envs ({', '.join(sorted(found))}): one results directory per env")
+    return found.pop()
+
+
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description="Regenerate the maze reproduction's summary, table and figures.")
-    parser.add_argument("directory", help="the results directory, e.g. results/maze")
+    parser = argparse.ArgumentParser(description="Regenerate a reproduction's summary, table and figures (maze, "
+                                                 "carracing or walker: the runs' env, from their args.json).")
+    parser.add_argument("directory", help="the results directory, e.g. results/maze or results/carracing")
     parser.error = lambda message: fail(message)
     args = parser.parse_args(argv)
     if not os.path.isdir(args.directory):
         fail(f"no directory {args.directory}")
     runs = load_runs(args.directory)
+    env = env_of(runs)
+    if env in ("carracing", "walker"):
+        from results import report_continuous  # imported here: it builds on this module's helpers
+
+        report_continuous.write_report(args.directory, runs, env)
+        return
     summary = summarize(runs)
     with open(os.path.join(args.directory, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)
