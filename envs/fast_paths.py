@@ -6,17 +6,31 @@ is the only place that knows how to run them faster. Each class here serves one 
 names it (`FastPath = ...` in its body); envs/nets.py uses it only for that exact class, so a subclass
 (a modified net) runs the plain path with no other change, and only while `recognises(net)` finds the
 modules the derivation relies on. With CLEANUED_PLAIN_NETS=1 in the environment every net runs plainly.
-tests/test_fast_paths.py checks each path against the plain net.
+Each net prints at its first use which path it runs. tests/test_fast_paths.py checks each path against
+the plain net.
+
+**Never another function, never stale weights.** A derivation follows the net's modules and weights, but
+it assumes the class's `features` as written. So the derived weights are checked whenever they are built:
+on a few copies of the step at hand, as they are and with some image cells changed, they must give the
+plain net's log-probabilities, value and LSTM state within float tolerance (`FastPath.check`). If they do
+not (an edit of `features` that the derivation does not follow, say), a warning names the net and the
+difference, and the net runs the plain path from then on. The teacher's training path assumes the same
+function: it runs only once a check has passed. The derived weights are rebuilt after every change of
+the parameters that autograd or an optimizer sees: a write to a parameter (its version counter: an
+in-place op under torch.no_grad(), load_state_dict), a parameter moved (its storage), a step of any
+torch.optim optimizer (counted by a global hook: fused Adam writes past the version counters), and a
+pass of the net with gradient (a hand-written update through `.data` follows one). A write through
+`.data` with none of these is invisible: write under torch.no_grad() instead.
 
 **Acting** (a rollout step: no gradient, no given action) costs more in per-call overhead than in
-arithmetic at a batch of 32, so it runs on tensors derived from the parameters once per change of them
-(`DerivedWeights`): the LSTM's transposed weights with the gates ordered i, f, o, g (the three sigmoids
-side by side); the actor's and critic's layers fused into two matmuls; and the input layers, folded as
-far as they are linear. The student's conv over its 5x5 view is a linear map from 75 inputs to 144, so
-it becomes a [75, 144] matrix (found by running the conv on unit images), and its direction embedding
-times the LSTM's input weights plus the LSTM's biases a [4, 4H] table of gate inputs, one row per
-direction. The teacher's grid changes in at most one cell per step, so the conv features' share of its
-gates is carried from step to step and only the conv windows over a changed cell are recomputed
+arithmetic at a batch of 32, so it runs on tensors derived from the parameters once per change of them:
+the LSTM's transposed weights with the gates ordered i, f, o, g (the three sigmoids side by side); the
+actor's and critic's layers fused into two matmuls; and the input layers, folded as far as they are
+linear. The student's conv over its 5x5 view is a linear map from 75 inputs to 144, so it becomes a
+[75, 144] matrix (found by running the conv on unit images), and its direction embedding times the
+LSTM's input weights plus the LSTM's biases a [4, 4H] table of gate inputs, one row per direction. The
+teacher's grid changes in at most one cell per step, so the conv features' share of its gates is
+carried from step to step and only the conv windows over a changed cell are recomputed
 (envs/sparse_projection.py); its time embedding becomes a table of gate inputs too. The action is drawn
 as the plain path's Categorical.sample draws it, with torch.multinomial on the same probabilities, so
 both paths draw the same actions from the same random stream.
@@ -32,29 +46,119 @@ import math
 
 import torch
 from torch import nn
+from torch.distributions import Categorical
+from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from envs.nets import ResettableLSTM
 from envs.sparse_projection import RunningConvGates, sparse_gate_inputs
 
+# The check of derived weights runs on the first CHECK_COPIES copies of a step, as they are and again with
+# CHECK_CELLS cells of each image set to random values and their episode starts flipped. An output may
+# differ from the plain net's by CHECK_TOLERANCE times (1 + its largest magnitude there): float rounding
+# stays under a hundredth of that (at the initial weights and at 3 to 10 times them), an edit of the
+# features far above it (dropping the conv's ReLU moves the LSTM state by 5-15% in the student, 4-8% in
+# the teacher).
+CHECK_COPIES = 4
+CHECK_CELLS = 3
+CHECK_TOLERANCE = 1e-4
 
-class DerivedWeights:
-    """Tensors computed from a net's parameters, rebuilt only after one of them changed. Every in-place
-    change of a parameter (an optimizer step, `load_state_dict`) bumps its version counter, and moving
-    it changes its storage. At a rollout step's small batch, rebuilding them at each call costs more
-    than the matmuls they feed. (The net's parameters are listed again only when one of its direct
-    children was replaced: listing them costs more than the rest of this check.)"""
+optimizer_steps = 0  # the steps taken by any torch.optim optimizer in this process
+
+
+def count_optimizer_step(optimizer, args, kwargs) -> None:
+    global optimizer_steps
+    optimizer_steps += 1
+
+
+register_optimizer_step_post_hook(count_optimizer_step)
+
+
+def check_rows(obs: dict, state, done: torch.Tensor):
+    """The rows a check runs on: the first CHECK_COPIES copies of an acting step as they are, then again
+    with CHECK_CELLS cells of each image set to random values (up to the image's largest; from a generator
+    of their own, so the net's random stream is untouched) and their episode starts flipped."""
+    copies = min(CHECK_COPIES, len(done))
+    images = obs["image"][:copies]
+    generator = torch.Generator(images.device).manual_seed(0)
+    cells = images.reshape(copies, -1, images.shape[-1]).clone()
+    changed = torch.randint(cells.shape[1], (copies, CHECK_CELLS), generator=generator, device=images.device)
+    values = torch.randint(int(images.max()) + 1, (copies, CHECK_CELLS, cells.shape[2]), generator=generator, device=images.device)
+    cells[torch.arange(copies, device=images.device).unsqueeze(1), changed] = values.to(cells.dtype)
+    rows = {key: torch.cat([value[:copies], value[:copies]]) for key, value in obs.items()}
+    rows["image"] = torch.cat([images, cells.view_as(images)])
+    rows_state = tuple(torch.cat([part[:, :copies], part[:, :copies]], 1) for part in state)
+    return rows, rows_state, torch.cat([done[:copies], (done[:copies] == 0).to(done.dtype)])
+
+
+class FastPath:
+    """What both nets' fast paths share: the derived weights, rebuilt after any change of the net's
+    parameters (the module's docstring) and checked against the plain net at every build; and the plain
+    path for good once a check fails (`mismatch`, which envs/nets.py reads).
+
+    A subclass gives `recognises(net)`, `derive(net, obs)` (the derived weights: `lstm_and_head_weights`'s
+    and its own) and `gate_inputs(weights, obs)` (W_ih x + b_ih + b_hh [N, 4H], in the gate order of
+    `lstm_and_head_weights`); and `fast_lstm_output` if it has a faster training path."""
 
     def __init__(self):
-        self.children, self.params, self.key, self.value = None, None, None, None
+        self.children, self.params, self.key, self.weights = None, None, None, None
+        self.checked = False  # whether a check has passed: the net computes what its fast path was derived from
+        self.mismatch = None  # why the net runs the plain path for good, once a check failed
 
-    def get(self, net: nn.Module, build, *extra_key):
+    def act(self, net, obs: dict, state, done: torch.Tensor):
+        """An acting step -> action, log-probability, entropy, value, new state; None if the check of
+        rebuilt weights fails now (the plain path then runs it)."""
+        weights = self.checked_weights(net, obs, state, done)
+        if weights is None:
+            return None
+        return act_from_gate_inputs(self.gate_inputs(weights, obs), state, done, weights)
+
+    def lstm_output(self, net, obs: dict, state, done: torch.Tensor):
+        """A pass that is not an acting step: the LSTM's output and state from a faster training path, or
+        None where the plain path runs it. A pass with gradient marks the derived weights stale: the
+        weights are about to change, perhaps through `.data`, which no version counter sees."""
+        if torch.is_grad_enabled():
+            self.key = None
+        return self.fast_lstm_output(net, obs, state, done)
+
+    def fast_lstm_output(self, net, obs: dict, state, done: torch.Tensor):
+        """No faster training path: the plain one runs."""
+        return None
+
+    def checked_weights(self, net, obs: dict, state, done: torch.Tensor):
+        """The derived weights of the net's current parameters, rebuilt and checked on this step if any
+        changed since the last build; None if that check fails. (The parameters are listed again only
+        when one of the net's direct children was replaced: listing them costs more than the rest.)"""
         children = tuple(net.children())
         if children != self.children:
             self.children, self.params = children, list(net.parameters())
-        key = [*extra_key, *((p.data_ptr(), p._version) for p in self.params)]
+        key = [optimizer_steps, obs["image"].shape[1:], *((p.data_ptr(), p._version) for p in self.params)]
         if key != self.key:
-            self.key, self.value = key, build()
-        return self.value
+            self.key, self.weights = None, None
+            with torch.no_grad():
+                weights = self.derive(net, obs)
+            self.mismatch = self.check(net, weights, obs, state, done)
+            if self.mismatch is not None:
+                net.announce_path(f"{self.mismatch}; it runs the plain path from now on", warning=True)
+                return None
+            net.announce_path("fast path (derived from the plain net, checked against it)")
+            self.checked, self.key, self.weights = True, key, weights
+        return self.weights
+
+    def check(self, net, weights: dict, obs: dict, state, done: torch.Tensor) -> str | None:
+        """What differs beyond float tolerance between the derived weights' outputs and the plain net's
+        (its features, LSTM and heads, as envs/nets.py runs them) on `check_rows` of this step, or None."""
+        rows, rows_state, rows_done = check_rows(obs, state, done)
+        with torch.no_grad():
+            log_probs, value, (h, c) = step_from_gate_inputs(self.gate_inputs(weights, rows), rows_state, rows_done, weights)
+            hidden, (plain_h, plain_c) = net.lstm(net.features(rows), rows_state, rows_done)
+            plain = (Categorical(logits=net.actor(hidden)).logits, net.critic(hidden).squeeze(-1), plain_h, plain_c)
+        for name, got, expected in zip(("log-probabilities", "values", "LSTM outputs", "LSTM cell states"), (log_probs, value, h, c), plain):
+            tolerance = CHECK_TOLERANCE * (1 + expected.nan_to_num().abs().max().item())
+            if not torch.isclose(got, expected, rtol=0, atol=tolerance, equal_nan=True).all():
+                difference = (got - expected).abs().max().item()
+                return (f"its fast path's {name} differ from the plain net's by {difference:.2g} (tolerance {tolerance:.2g}): "
+                        "the net computes something its fast path was not derived from")
+        return None
 
 
 def is_two_layer_tanh_head(head: nn.Module) -> bool:
@@ -80,10 +184,10 @@ def lstm_and_head_weights(net: nn.Module) -> dict[str, torch.Tensor]:
             "lstm_bias": (lstm.bias_ih_l0 + lstm.bias_hh_l0)[order], "heads": heads}
 
 
-def act_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
-    """The rest of an acting step from the input's share of the gates, W_ih x + b_ih + b_hh [N, 4H] in the
-    gate order of `lstm_and_head_weights` (it is overwritten): torch's LSTM cell in place, the fused
-    heads, and Categorical's sampling and maths. -> action, log-probability, entropy, value, new state."""
+def step_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
+    """An acting step from the input's share of the gates, W_ih x + b_ih + b_hh [N, 4H] in the gate order
+    of `lstm_and_head_weights` (it is overwritten): torch's LSTM cell in place and the fused heads.
+    -> the normalized log-probabilities [N, A] (as Categorical(logits=...) holds them), value, new state."""
     hidden_size = weights["lstm_recurrent"].shape[0]
     reset = done.view(-1, 1).bool()
     h, c = state[0][0], state[1][0]
@@ -100,44 +204,44 @@ def act_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, w
     first, first_bias, second, second_bias = weights["heads"]
     out = torch.addmm(second_bias, torch.addmm(first_bias, h, first).tanh_(), second)
     logits, value = out[:, :-1], out[:, -1]
-    log_probs = logits - logits.logsumexp(-1, keepdim=True)  # Categorical(logits=...)'s normalized logits
-    probs = torch.softmax(log_probs, -1)  # and its probabilities, which its sample() draws from
+    return logits - logits.logsumexp(-1, keepdim=True), value, (h.unsqueeze(0), c.unsqueeze(0))
+
+
+def act_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
+    """`step_from_gate_inputs`, then Categorical's sampling and maths. -> action, log-probability,
+    entropy, value, new state."""
+    log_probs, value, state = step_from_gate_inputs(gate_inputs, state, done, weights)
+    probs = torch.softmax(log_probs, -1)  # Categorical's probabilities, which its sample() draws from
     action = torch.multinomial(probs, 1, True).squeeze(1)
     entropy = -(probs * log_probs).sum(-1)
     logprob = log_probs.gather(-1, action.unsqueeze(-1)).squeeze(-1)
-    return action, logprob, entropy, value, (h.unsqueeze(0), c.unsqueeze(0))
+    return action, logprob, entropy, value, state
 
 
-class MazeStudentFastPath:
+class MazeStudentFastPath(FastPath):
     """Acting for envs.maze.MazeStudent on the folded weights described in the module's docstring."""
-
-    def __init__(self):
-        self.derived = DerivedWeights()
 
     @staticmethod
     def recognises(net: nn.Module) -> bool:
         return type(net.conv) is nn.Conv2d and type(net.direction_embed) is nn.Linear and recurrent_parts_recognised(net)
 
-    def lstm_output(self, net, obs: dict, state, done):
-        """No faster training path: the plain one runs."""
-        return None
-
-    def act(self, net, obs: dict, state, done: torch.Tensor):
+    @staticmethod
+    def gate_inputs(weights: dict, obs: dict) -> torch.Tensor:
         image = obs["image"]
-        weights = self.derived.get(net, lambda: self.derive(net, image.shape[1:]), image.shape)
         view = torch.addmm(weights["view_bias"], image.reshape(len(image), -1).float(), weights["view_matrix"]).relu_()
-        gate_inputs = weights["direction_gates"].index_select(0, obs["direction"].long()).addmm_(view, weights["view_input"])
-        return act_from_gate_inputs(gate_inputs, state, done, weights)
+        return weights["direction_gates"].index_select(0, obs["direction"].long()).addmm_(view, weights["view_input"])
 
     @staticmethod
-    def derive(net, image_shape: torch.Size) -> dict[str, torch.Tensor]:
+    def derive(net, obs: dict) -> dict[str, torch.Tensor]:
         """The conv as a matrix on the raw image flattened as (y, x, channel) (the image scale folded in)
         and its output for an all-zero image (the bias), both with the outputs flattened as `features`
         flattens them; the LSTM input weights of the view's features; and the direction's gate inputs,
         its embedding of each one-hot times its LSTM input weights plus the LSTM's biases."""
         weights = lstm_and_head_weights(net)
+        image_shape = obs["image"].shape[1:]
         pixels = math.prod(image_shape)
-        unit_images = torch.cat([torch.eye(pixels), torch.zeros(1, pixels)]).to(net.conv.weight).view(pixels + 1, *image_shape)
+        like_weight = {"dtype": net.conv.weight.dtype, "device": net.conv.weight.device}
+        unit_images = torch.cat([torch.eye(pixels, **like_weight), torch.zeros(1, pixels, **like_weight)]).view(pixels + 1, *image_shape)
         outputs = net.conv(unit_images.permute(0, 3, 1, 2) / net.image_scale).flatten(1)
         view_bias = outputs[-1]
         lstm_input = weights.pop("lstm_input")
@@ -148,17 +252,15 @@ class MazeStudentFastPath:
                 "view_input": lstm_input[:view_size].contiguous(), "direction_gates": direction_gates}
 
 
-class MazeTeacherFastPath:
+class MazeTeacherFastPath(FastPath):
     """Acting and training for envs.maze.MazeTeacher from the cells of the grid that changed (the module's
     docstring). Its reference image, whose conv features' share of the gates is computed densely, is the
-    first image of the batch: every teacher episode starts from the same empty grid.
+    first image of the step its weights are derived on: every teacher episode starts from the same empty
+    grid.
 
     Both paths read W_ih^T's conv rows, so their first use stores the teacher's 22M W_ih transposed (the
     same values and shape, strides (1, 4H)): the sparse products then read a view and return the
     gradient in that layout, with no transposed copy of it in either direction."""
-
-    def __init__(self):
-        self.derived = DerivedWeights()
 
     @staticmethod
     def recognises(net: nn.Module) -> bool:
@@ -176,12 +278,15 @@ class MazeTeacherFastPath:
         if weight_ih.stride(0) != 1:
             weight_ih.data = weight_ih.data.t().contiguous().t()
 
-    def lstm_output(self, net, obs: dict, state, done: torch.Tensor):
+    def fast_lstm_output(self, net, obs: dict, state, done: torch.Tensor):
         """A training sequence (T > 1): the LSTM's output [T * N, H] and None (its final state is never
-        needed); None for one step, or if too many cells change for the sparse projection to pay."""
+        needed); None for one step, if no check has passed yet and the check on the sequence's first
+        step fails, or if too many cells change for the sparse projection to pay."""
         num_copies = state[0].shape[1]
         images = obs["image"]
         if len(images) == num_copies:
+            return None
+        if not self.checked and self.checked_weights(net, {k: v[:num_copies] for k, v in obs.items()}, state, done[:num_copies]) is None:
             return None
         self.store_input_weights_transposed(net)
         lstm = net.lstm.lstm
@@ -196,16 +301,25 @@ class MazeTeacherFastPath:
 
     def act(self, net, obs: dict, state, done: torch.Tensor):
         self.store_input_weights_transposed(net)
-        weights = self.derived.get(net, lambda: self.derive(net, obs["image"][0].clone()))  # a copy: the caller may reuse its buffer
-        gate_inputs = weights["running_conv_gates"](obs["image"])
-        gate_inputs.addmm_(obs["noise"].float(), weights["noise_input"]).add_(weights["time_gates"].index_select(0, obs["time"].long()))
-        return act_from_gate_inputs(gate_inputs, state, done, weights)
+        return super().act(net, obs, state, done)
+
+    def check(self, net, weights: dict, obs: dict, state, done: torch.Tensor) -> str | None:
+        """FastPath's check; then the running conv gates forget the check's images."""
+        mismatch = super().check(net, weights, obs, state, done)
+        weights["running_conv_gates"].start_over()
+        return mismatch
 
     @staticmethod
-    def derive(net, reference: torch.Tensor) -> dict:
+    def gate_inputs(weights: dict, obs: dict) -> torch.Tensor:
+        gate_inputs = weights["running_conv_gates"](obs["image"])
+        return gate_inputs.addmm_(obs["noise"].float(), weights["noise_input"]).add_(weights["time_gates"].index_select(0, obs["time"].long()))
+
+    @staticmethod
+    def derive(net, obs: dict) -> dict:
         """The running conv gates (W f(I) per copy, on W_ih^T's conv rows as [C, P, 4H]); the time's gate
         inputs, its embedding of each one-hot times its LSTM input weights plus the LSTM's biases
         [num_steps, 4H]; and the noise's LSTM input weights."""
+        reference = obs["image"][0].clone()  # a copy: the caller may reuse its buffer
         weights = lstm_and_head_weights(net)
         lstm_input = weights.pop("lstm_input")
         time_size = net.time_embed.out_features

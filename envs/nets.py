@@ -109,7 +109,8 @@ class RecurrentCategoricalActorCritic(nn.Module):
     derived from that net's definition. It is looked up in the net's own class only, never inherited,
     so a subclass (a modified net) runs the plain path with no other change; and it serves only nets
     whose modules its `recognises` accepts. Acting (no gradient, no given action) then runs its `act`,
-    and a training sequence its `lstm_output` where that returns one.
+    and a training sequence its `lstm_output` where that returns one, until its check against this plain
+    definition fails. The first use of a net prints which path it runs.
     """
 
     is_recurrent = True  # PPO keeps each copy's rollout whole: minibatches are split over env copies
@@ -118,16 +119,34 @@ class RecurrentCategoricalActorCritic(nn.Module):
     def __init__(self):
         super().__init__()
         self.fast_path_state = None  # the FastPath instance of this net (its derived weights), made at first use
+        self.path_announced = False
 
     def fast_path(self):
         """This net's fast path, or None if it runs plainly: its own class names none, it does not
-        recognise the net's modules, or CLEANUED_PLAIN_NETS=1 is set in the environment."""
+        recognise the net's modules, CLEANUED_PLAIN_NETS=1 is set in the environment, or a check of its
+        derived weights against this plain net failed."""
         fast_path_class = type(self).__dict__.get("FastPath")
-        if fast_path_class is None or os.environ.get("CLEANUED_PLAIN_NETS") == "1" or not fast_path_class.recognises(self):
-            return None
+        if fast_path_class is None:
+            if getattr(type(self), "FastPath", None) is not None:
+                return self.plain_path("a fast path serves only the class it is derived for, not a subclass")
+            return self.plain_path("no fast path is derived for it")
+        if os.environ.get("CLEANUED_PLAIN_NETS") == "1":
+            return self.plain_path("CLEANUED_PLAIN_NETS=1")
+        if not fast_path_class.recognises(self):
+            return self.plain_path("its modules are not the kinds its fast path is derived from")
         if self.fast_path_state is None:
             self.fast_path_state = fast_path_class()
-        return self.fast_path_state
+        return None if self.fast_path_state.mismatch else self.fast_path_state
+
+    def plain_path(self, reason: str) -> None:
+        self.announce_path(f"plain path ({reason})")
+        return None
+
+    def announce_path(self, path: str, warning: bool = False) -> None:
+        """Prints the path this net runs, once, at its first use; and a warning whenever it is given."""
+        if warning or not self.path_announced:
+            self.path_announced = True
+            print(f"{'warning: ' if warning else ''}{type(self).__name__}: {path}", flush=True)
 
     def initial_state(self, n: int, device=None):
         return self.lstm.initial_state(n, device)
@@ -159,7 +178,9 @@ class RecurrentCategoricalActorCritic(nn.Module):
         if action is None and not torch.is_grad_enabled():
             fast_path = self.fast_path()
             if fast_path is not None:
-                return fast_path.act(self, obs, state, done)
+                acted = fast_path.act(self, obs, state, done)
+                if acted is not None:
+                    return acted
         hidden, state = self.lstm_output(obs, state, done)
         dist = Categorical(logits=self.actor(hidden))
         if action is None:

@@ -178,12 +178,16 @@ class RunningConvGates:
     only. A copy whose image differs from the reference in no more cells than from its previous image
     (a teacher episode's first step) restarts from W f(I_ref), so rounding does not build up over
     episodes; if too many windows change (images from elsewhere), all copies restart from the dense
-    product W f(I). A new batch size starts from the reference. Built with the weights it was derived from (the acting weights), so it never outlives them:
+    product W f(I). A new batch size starts from the reference, and so does the call after `start_over`.
+    Built with the weights it was derived from (the acting weights), so it never outlives them:
     `conv_weight_t` is W^T's conv rows as [C, P, 4H], `start_gates` W f(I_ref) [4H]."""
 
     def __init__(self, conv: nn.Conv2d, scale: float, reference: torch.Tensor, conv_weight_t: torch.Tensor, start_gates: torch.Tensor):
         self.conv, self.scale, self.reference = conv, scale, reference
         self.conv_weight_t, self.start_gates = conv_weight_t, start_gates
+        self.start_over()
+
+    def start_over(self) -> None:
         self.images, self.gates = None, None
 
     def __call__(self, images: torch.Tensor) -> torch.Tensor:

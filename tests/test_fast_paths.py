@@ -1,12 +1,15 @@
 """The fast paths of envs/fast_paths.py equal the plain nets they are derived from, and serve only the
-unmodified nets: a subclass with another conv or hidden size trains and acts on the plain path.
-(The teacher's sparse training path: tests/test_sparse_projection.py.)"""
+unmodified nets: a subclass with another conv or hidden size trains and acts on the plain path. Each
+test of a fast path asserts that it ran. (The teacher's sparse training path:
+tests/test_sparse_projection.py; a net edited, or written past its version counters:
+tests/test_fast_path_checks.py.)"""
 
 import numpy as np
 import pytest
 import torch
 from torch import nn
 
+import envs.fast_paths as fast_paths
 from envs.fast_paths import MaskedLSTMRecurrence
 from envs.maze import MazeEnv, MazeStudent, MazeTeacher, MazeTeacherMDP
 from envs.nets import ResettableLSTM
@@ -19,6 +22,31 @@ def fast_paths_on(monkeypatch):
 
 def as_torch(obs: dict) -> dict:
     return {k: torch.as_tensor(v) for k, v in obs.items()}
+
+
+def count_calls(monkeypatch, name: str) -> list:
+    """Replaces envs.fast_paths' function `name` (for the monkeypatch's life) with one that calls it and
+    notes in the returned list, per call, whether it returned something (not None)."""
+    returned = []
+    original = getattr(fast_paths, name)
+
+    def counted(*args, **kwargs):
+        result = original(*args, **kwargs)
+        returned.append(result is not None)
+        return result
+
+    monkeypatch.setattr(fast_paths, name, counted)
+    return returned
+
+
+def fast_acting_step(net, obs, state, done):
+    """An acting step (no gradient, no action given), asserted to run on the fast path."""
+    with pytest.MonkeyPatch.context() as patch:
+        fast_acts = count_calls(patch, "act_from_gate_inputs")
+        with torch.no_grad():
+            result = net.get_action_and_value(obs, state, done)
+    assert fast_acts == [True]
+    return result
 
 
 def plain_step(net, obs, state, done, monkeypatch):
@@ -36,9 +64,7 @@ def assert_fast_step_equals_plain(net, obs, state, done, monkeypatch, atol=1e-5)
     torch.manual_seed(11)
     plain = plain_step(net, obs, state, done, monkeypatch)
     torch.manual_seed(11)
-    with torch.no_grad():
-        fast = net.get_action_and_value(obs, state, done)
-    assert net.fast_path_state.derived.value is not None  # the fast path ran
+    fast = fast_acting_step(net, obs, state, done)
     assert torch.equal(fast[0], plain[0])
     for got, expected in zip((*fast[1:4], *fast[4]), (*plain[1:4], *plain[4])):
         assert torch.allclose(got, expected, atol=atol, rtol=1e-5)
@@ -121,9 +147,7 @@ def test_fast_sampling_follows_the_policy():
         net.actor[2].bias.copy_(torch.log(probs.clamp(min=1e-12)))
     n = 100_000
     obs = {"image": torch.zeros(n, 5, 5, 3, dtype=torch.uint8), "direction": torch.zeros(n, dtype=torch.long)}
-    with torch.no_grad():
-        action, logprob, entropy, _, _ = net.get_action_and_value(obs, net.initial_state(n), torch.ones(n))
-    assert net.fast_path_state.derived.value is not None
+    action, logprob, entropy, _, _ = fast_acting_step(net, obs, net.initial_state(n), torch.ones(n))
     counts = torch.bincount(action, minlength=7).float()
     assert counts[[1, 4, 5, 6]].sum() == 0  # actions of probability 0 (up to 1e-12) never drawn
     tolerance = 4 * torch.sqrt(probs * (1 - probs) / n)  # 4 standard errors

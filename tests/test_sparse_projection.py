@@ -2,6 +2,7 @@
 teacher: outputs and every gradient on teacher trajectories of both maze settings, acting step by step,
 generic sequences, a float64 gradcheck, and three updates of paired.py."""
 
+import ast
 import concurrent.futures
 import csv
 import os
@@ -15,6 +16,7 @@ from torch import nn
 
 from envs.maze import CELL_ENCODING, MazeTeacher, MazeTeacherMDP, empty_grid
 from envs.sparse_projection import MAX_CHANGED_FRACTION, sparse_gate_inputs
+from test_fast_paths import count_calls
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SETTINGS = {"maze": (60, True), "maze25": (25, False)}  # (block budget, uniform budget) of MazeTeacherMDP
@@ -90,32 +92,27 @@ def losses_and_grads(net, batch, num_copies, done, weights):
     return dist.logits.detach(), value.detach(), {**grads, "noise": obs["noise"].grad}
 
 
-def assert_matches_dense(net, batch, num_copies, done=None):
-    """The fast (sparse) path's outputs and gradients equal the plain net's, which computes the dense
-    features; `done` marks episode starts (by default: the first step of every copy)."""
+def assert_matches_dense(net, batch, num_copies, sparse: bool, done=None):
+    """The fast path's outputs and gradients equal the plain net's, which computes the dense features;
+    the fast path projects the batch sparsely if `sparse`, else hands it over to the dense path. `done`
+    marks episode starts (by default: the first step of every copy)."""
     if done is None:
         done = torch.zeros(len(batch["time"]))
         done[:num_copies] = 1.0
     torch.manual_seed(5)
     weights = (torch.randn(len(batch["time"]), net.actor[-1].out_features), torch.randn(len(batch["time"])))
-    sparse = run(False, losses_and_grads, net, batch, num_copies, done, weights)
+    with pytest.MonkeyPatch.context() as patch:
+        projections = count_calls(patch, "sparse_gate_inputs")  # per call: whether it projected (or handed over)
+        fast = run(False, losses_and_grads, net, batch, num_copies, done, weights)
+    assert projections == [sparse]
     dense = run(True, losses_and_grads, net, batch, num_copies, done, weights)
-    for got, expected in zip(sparse[:2], dense[:2]):
+    for got, expected in zip(fast[:2], dense[:2]):
         assert torch.allclose(got, expected, rtol=1e-4, atol=1e-5)
-    assert sparse[2].keys() == dense[2].keys()
+    assert fast[2].keys() == dense[2].keys()
     for name, expected in dense[2].items():
         scale = expected.abs().max()
         assert scale > 0, name
-        assert torch.allclose(sparse[2][name], expected, rtol=1e-3, atol=1e-4 * scale), name
-
-
-def sparse_path_taken(net, batch, num_copies) -> bool:
-    """Whether the fast path projects `batch` sparsely (as it does, from the batch's first image)."""
-    lstm = net.lstm.lstm
-    with torch.no_grad():
-        gates = sparse_gate_inputs(net.conv[0], net.image_scale, batch["image"][0], batch["image"], net.dense_features(batch),
-                                   lstm.weight_ih_l0, lstm.bias_ih_l0, num_copies)
-    return gates is not None
+        assert torch.allclose(fast[2][name], expected, rtol=1e-3, atol=1e-4 * scale), name
 
 
 @pytest.mark.parametrize("setting", ["maze", "maze25"])
@@ -126,8 +123,7 @@ def test_training_path_equals_dense_on_teacher_episodes(setting, channels):
     batch, mdp = teacher_episode(*SETTINGS[setting], num_copies, seed=channels)
     assert_episode_has_the_cases(batch, mdp, setting, num_copies)
     net = MazeTeacher(mdp.num_steps, conv_channels=channels)
-    assert sparse_path_taken(net, batch, num_copies)
-    assert_matches_dense(net, batch, num_copies)
+    assert_matches_dense(net, batch, num_copies, sparse=True)
 
 
 def test_training_path_equals_dense_on_generic_sequences():
@@ -148,20 +144,24 @@ def test_training_path_equals_dense_on_generic_sequences():
     batch = {"image": torch.as_tensor(np.concatenate(images)), "time": torch.as_tensor(rng.integers(0, 27, steps * num_copies)),
              "noise": torch.rand(steps * num_copies, 50)}
     net = MazeTeacher(27, conv_channels=5)
-    assert sparse_path_taken(net, batch, num_copies)
     done = torch.zeros(steps * num_copies)
     done[[0, 1, 2, 5 * num_copies + 1]] = 1.0
-    assert_matches_dense(net, batch, num_copies, done)
+    assert_matches_dense(net, batch, num_copies, sparse=True, done=done)
 
     random_images = {**batch, "image": torch.randint(0, 10, batch["image"].shape, dtype=torch.uint8)}
-    assert MAX_CHANGED_FRACTION < 1 and not sparse_path_taken(net, random_images, num_copies)
-    assert_matches_dense(net, random_images, num_copies)
+    assert MAX_CHANGED_FRACTION < 1
+    assert_matches_dense(net, random_images, num_copies, sparse=False)
 
 
-def acting_step(net, obs, state):
+def acting_step(net, obs, state, fast: bool = False):
+    """An acting step from seed 9; asserted to run on the fast path if `fast`."""
     torch.manual_seed(9)
-    with torch.no_grad():
-        return net.get_action_and_value(obs, state, torch.zeros(len(obs["time"])))
+    with pytest.MonkeyPatch.context() as patch:
+        fast_acts = count_calls(patch, "act_from_gate_inputs")
+        with torch.no_grad():
+            result = net.get_action_and_value(obs, state, torch.zeros(len(obs["time"])))
+    assert not fast or fast_acts == [True]
+    return result
 
 
 @pytest.mark.parametrize("setting", ["maze", "maze25"])
@@ -185,7 +185,7 @@ def test_acting_path_equals_dense(setting):
     def check(steps):
         for step in steps:
             state = states[len(step["time"])]
-            fast, plain = run(False, acting_step, net, step, state), run(True, acting_step, net, step, state)
+            fast, plain = run(False, acting_step, net, step, state, True), run(True, acting_step, net, step, state)
             assert torch.equal(fast[0], plain[0])
             for got, expected in zip((*fast[1:4], *fast[4]), (*plain[1:4], *plain[4])):
                 assert torch.allclose(got, expected, rtol=1e-4, atol=1e-5)
@@ -194,8 +194,8 @@ def test_acting_path_equals_dense(setting):
     # An episode's first image is the empty grid, the reference: its copies restart exactly from
     # W f(I_ref), rounding from the earlier episodes gone.
     for step in split(episodes[1], num_copies)[:20] + split(episodes[0], num_copies)[:1]:
-        acting_step(net, step, states[num_copies])
-    running = net.fast_path_state.derived.value["running_conv_gates"]
+        acting_step(net, step, states[num_copies], True)
+    running = net.fast_path_state.weights["running_conv_gates"]
     assert torch.equal(running.gates, running.start_gates.expand(num_copies, -1))
     with torch.no_grad():
         net.lstm.lstm.weight_ih_l0.mul_(1.5)
@@ -243,24 +243,56 @@ def test_gradcheck_float64_small_grid():
         assert torch.allclose(projection(*inputs), dense, atol=1e-10)
 
 
+# Runs a script as `python SCRIPT ARGS` would, counting the calls of the fast paths' acting steps and of
+# the teacher's sparse projection, by whether each ran (returned a result) or handed over to the plain
+# path: "fast path calls: {...}" at exit.
+COUNTING_FAST_PATHS = """
+import atexit, collections, runpy, sys
+from envs import fast_paths
+calls = collections.Counter()
+def counted(name, function):
+    def call(*args, **kwargs):
+        result = function(*args, **kwargs)
+        calls[name + (" ran" if result is not None else " handed over")] += 1
+        return result
+    return call
+fast_paths.sparse_gate_inputs = counted("sparse projection", fast_paths.sparse_gate_inputs)
+for fast_path in (fast_paths.MazeStudentFastPath, fast_paths.MazeTeacherFastPath):
+    fast_path.act = counted(fast_path.__name__ + ".act", fast_path.act)
+atexit.register(lambda: print("fast path calls:", dict(calls)))
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
 def test_paired_updates_equal_plain_nets(tmp_path):
-    """Three updates of paired.py with the paper's teacher log the same metrics with the fast paths as
-    with CLEANUED_PLAIN_NETS=1 (timings aside)."""
+    """Three updates of paired.py with the paper's teacher log the same metrics with the fast paths (all
+    three nets act on theirs, and the teacher trains on its sparse projection) as with
+    CLEANUED_PLAIN_NETS=1 (timings aside)."""
     args = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "384", "--eval-interval", "1000",
             "--eval-episodes", "1", "--levels-interval", "1000", "--checkpoint-interval", "1000"]
 
     def run_script(mode):
         cwd = tmp_path / mode
         cwd.mkdir()
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_PLAIN_NETS": "1" if mode == "plain" else "0"}
-        result = subprocess.run([sys.executable, os.path.join(ROOT, "paired.py"), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_PLAIN_NETS": "1" if mode == "plain" else "0", "PYTHONPATH": ROOT}
+        command = [sys.executable, "-c", COUNTING_FAST_PATHS, os.path.join(ROOT, "paired.py"), *args]
+        result = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
         assert result.returncode == 0, result.stderr
+        lines = result.stdout.splitlines()
+        announced = sorted(line for line in lines if line.startswith(("MazeStudent: ", "MazeTeacher: ", "warning: ")))
+        (calls,) = [ast.literal_eval(line.removeprefix("fast path calls: ")) for line in lines if line.startswith("fast path calls: ")]
         (run_dir,) = (cwd / "runs").iterdir()
         with open(run_dir / "metrics.csv", newline="") as f:
-            return list(csv.DictReader(f))
+            return list(csv.DictReader(f)), announced, calls
 
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        fast, plain = pool.map(run_script, ["fast", "plain"])
+        (fast, fast_announced, fast_calls), (plain, plain_announced, plain_calls) = pool.map(run_script, ["fast", "plain"])
+    checked = "fast path (derived from the plain net, checked against it)"
+    assert fast_announced == [f"MazeStudent: {checked}"] * 2 + [f"MazeTeacher: {checked}"]
+    assert sorted(fast_calls) == ["MazeStudentFastPath.act ran", "MazeTeacherFastPath.act ran", "sparse projection ran"]
+    assert plain_announced == ["MazeStudent: plain path (CLEANUED_PLAIN_NETS=1)"] * 2 + ["MazeTeacher: plain path (CLEANUED_PLAIN_NETS=1)"]
+    assert plain_calls == {}
     assert len(fast) == len(plain) == 3
     for got, expected in zip(fast, plain):
         for column, value in expected.items():
