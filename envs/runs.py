@@ -80,12 +80,17 @@ def select_device(use_cuda: bool, torch_deterministic: bool, env: str) -> torch.
     """The GPU if asked for and present, else the CPU, with torch set up for it. On a CPU, glibc keeps
     freed memory (`keep_freed_memory`: the PPO update's large tensors stop page-faulting). On a GPU,
     float32 in cuDNN's convs and LSTM too (no TF32), so acting and training compute the same numbers and
-    PPO's first ratio is 1 as on a CPU; cuDNN's deterministic algorithms with --torch-deterministic (CleanRL's
-    flag), else it times its algorithms for CarRacing's fixed-shape convs. Distributions skip their
-    argument checks, each of which would wait for the GPU."""
+    PPO's first ratio is 1 as on a CPU; with --torch-deterministic (CleanRL's flag), deterministic
+    algorithms: cuDNN's, and torch's own where it has them (index_add, whose atomic adds on a GPU sum the
+    PAIRED teacher's sparse input projection in a varying order: the same seed's teacher losses differed in
+    their 5th digit on an H200), else cuDNN times its algorithms for CarRacing's fixed-shape convs.
+    Distributions skip their argument checks, each of which would wait for the GPU."""
     device = torch.device("cuda" if torch.cuda.is_available() and use_cuda else "cpu")
     if device.type == "cpu":
         keep_freed_memory()
+    elif torch_deterministic:  # cuBLAS needs its workspace fixed before its first use for deterministic results
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+        torch.use_deterministic_algorithms(True, warn_only=True)
     torch.backends.cudnn.deterministic = torch_deterministic
     torch.backends.cudnn.allow_tf32 = False
     torch.backends.cudnn.benchmark = env == "carracing" and not torch_deterministic

@@ -1,0 +1,341 @@
+"""On a GPU machine, in one run: the CUDA tests, and the training speed of every script on the GPU and on
+the same machine's CPU. Writes one JSON file and prints a short log.
+
+    python benchmarks/gpu_check.py --out gpu_check.json          # planned for 5-6 minutes on one GPU and 16 cores
+    python benchmarks/gpu_check.py --quick --out /tmp/check.json  # tiny runs only: checks that every run works
+
+It runs, one at a time, the GPU speed runs, the CUDA tests, then the CPU speed runs (the least new if the
+time runs out), and rewrites the JSON after each, so a run cut short keeps what it measured.
+
+The JSON holds:
+- `machine`: Python, torch, CUDA and cuDNN versions, the GPU's name and memory, the CPU and its core count;
+- `tests`: the outcome of each test of tests/test_cuda.py (resume on the GPU, --torch-deterministic, checkpoints
+  moved between GPU and CPU, every tensor of an update on the GPU) and tests/test_device.py (the GPU settings,
+  observations copied through pinned memory), run by pytest in a child process;
+- `speed`: one entry per run and device (`cuda`, then `cpu` with the scripts' default threads): the scripts on
+  the maze at the paper's settings for 3 updates each, the headline `paired_bc.py --bidirectional --env
+  carracing` for 3 and `accel.py --env walker` for 2, each with
+  - `protagonist_steps_per_s`: the steps of the script's `env_steps` column (the protagonist's in the PAIRED
+    scripts; plr.py and accel.py count every step their one student plays, scoring and edit evaluation
+    included) over the script's own update time (its `elapsed`, which leaves out validation and logging),
+    over the updates after the first, which pays for warm-up;
+  - `shares`: the part of that time spent in each rollout function (the env stepping with the policy acting,
+    GAE included) and in `ppo_update` (every PPO update, the teacher's included), the GPU synchronized
+    around each call, and `rollout_share`, `ppo_update_share` and `other_share` (level generation, the level
+    buffer, edits, regret) summed from them;
+  - `peak_gpu_memory_mib`: torch.cuda.max_memory_allocated() over the run, read inside the run's process;
+  - `replay_updates` among the timed ones (PLR, ACCEL, PAIRED+Evo: a replay update trains, a new level's
+    only scores, so a short run's rate swings with their count), `seconds_per_update` and the command.
+
+Each run is its script run as a user runs it (in a temporary directory, default flags at the paper's
+settings), in a child process that executes the script's definitions, wraps its rollout and update functions
+with timers, then executes its main block, and stops it once the updates to time are done: its
+validation, checkpoints, level images and final evaluation never run. Only the level buffer is shrunk (to 64
+levels, 32 for the walker's 16 env copies) so that replay can start at the second update, as in scripts_sps.py, and
+CarRacing leaves out the Formula-1 tracks (`--f1-tracks none`), which only its evaluation reads.
+
+Without CUDA it says so in one line and runs the CPU part only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import concurrent.futures
+import contextlib
+import functools
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+import types
+import xml.etree.ElementTree as ElementTree
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+BENCHMARKS = os.path.join(ROOT, "benchmarks")
+ROLLOUT_FUNCTIONS = ("collect_rollout", "teacher_rollout", "student_rollout")
+UPDATE_FUNCTION = "ppo_update"
+# No validation, level images or checkpoints before the run is stopped.
+QUIET = ["--eval-interval", "100000", "--eval-episodes", "1", "--levels-interval", "100000", "--checkpoint-interval", "100000"]
+# Steps per update, at the paper's settings and in --quick's tiny runs (whose flags follow).
+BATCH = {"maze": 32 * 256, "carracing": 16 * 125, "walker": 16 * 2000}
+QUICK_BATCH = {"maze": 4 * 16, "carracing": 2 * 8, "walker": 2 * 16}
+QUICK_FLAGS = {"maze": ["--num-envs", "4", "--num-steps", "16", "--update-epochs", "1"],
+               "carracing": ["--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1"],
+               "walker": ["--num-envs", "2", "--num-steps", "16", "--num-minibatches", "4", "--update-epochs", "1"]}
+# (label, script, env, updates, flags, flags at the paper's settings, flags of the tiny --quick run)
+RUNS = [
+    ("plr.py", "plr.py", "maze", 3, [], ["--level-buffer-size", "64"], ["--level-buffer-size", "8"]),
+    ("accel.py", "accel.py", "maze", 3, [], ["--level-buffer-size", "64"], ["--level-buffer-size", "8"]),
+    ("paired.py", "paired.py", "maze", 3, [], [], ["--teacher-conv-channels", "4"]),
+    ("paired_hient.py", "paired_hient.py", "maze", 3, [], [], ["--teacher-conv-channels", "4"]),
+    ("paired_bc.py", "paired_bc.py", "maze", 3, [], [], ["--teacher-conv-channels", "4"]),
+    ("paired_evo.py", "paired_evo.py", "maze", 3, [], ["--level-buffer-size", "64"], ["--level-buffer-size", "8"]),
+    ("paired_bc.py --bidirectional --env carracing", "paired_bc.py", "carracing", 3, ["--bidirectional", "--f1-tracks", "none"], [], []),
+    ("accel.py --env walker", "accel.py", "walker", 2, [], ["--level-buffer-size", "32"], ["--level-buffer-size", "2"]),
+]
+QUICK_UPDATES = 2
+TESTS = ["tests/test_cuda.py", "tests/test_device.py"]  # the tests that need a GPU, or have a GPU case
+TESTS_TIMEOUT, RUN_TIMEOUT = 240, 150  # seconds
+# The child process that times one run: report path, updates to time, script path, the script's arguments.
+TIMED_CHILD = f"import sys; sys.path.insert(0, {BENCHMARKS!r}); import gpu_check; gpu_check.time_script(*sys.argv[1:])"
+
+
+class StopRun(Exception):
+    """Raised by a script's instrumentation to end the run there; run_script returns normally."""
+
+
+def is_main_block(node: ast.stmt) -> bool:
+    return isinstance(node, ast.If) and ast.unparse(node.test) == "__name__ == '__main__'"
+
+
+def run_script(path: str, argv: list[str], instrument) -> dict:
+    """Run the script at `path` in this process as `python path *argv` runs it, except that
+    `instrument(namespace)` is called between the script's definitions and its main block (its
+    `if __name__ == "__main__":` part): it may replace the functions the main block calls, and raise StopRun
+    from them to end the run. Returns the script's global names (its main block's variables among them)."""
+    with open(path) as f:
+        tree = ast.parse(f.read(), path)
+    (main,) = [node for node in tree.body if is_main_block(node)]
+    definitions = [node for node in tree.body if node is not main]
+    module = types.ModuleType("__main__")  # as runpy: the script's classes belong to a __main__ module
+    module.__file__ = path
+    saved = sys.argv, sys.modules["__main__"], list(sys.path)
+    sys.argv, sys.modules["__main__"] = [path, *argv], module
+    sys.path.insert(0, os.path.dirname(path))
+    try:
+        exec(compile(ast.Module(definitions, type_ignores=[]), path, "exec"), module.__dict__)
+        instrument(module.__dict__)
+        with contextlib.suppress(StopRun):
+            exec(compile(ast.Module(main.body, type_ignores=[]), path, "exec"), module.__dict__)
+    finally:
+        sys.argv, sys.modules["__main__"], sys.path[:] = saved
+    return module.__dict__
+
+
+def time_script(report_path: str, updates: str, path: str, *argv: str) -> None:
+    """In a child process: run the script, timing its rollout and update functions, and stop it after
+    `updates` updates. Writes to report_path, per update, the script's own update time (`elapsed`), its
+    `env_steps`, whether it replayed, and the seconds spent in each timed function so far; then the
+    run's device and peak GPU memory."""
+    import torch
+
+    totals = {name: 0.0 for name in (*ROLLOUT_FUNCTIONS, UPDATE_FUNCTION)}
+    records = []
+
+    def synchronize():
+        if torch.cuda.is_initialized():
+            torch.cuda.synchronize()
+
+    def timed(name, function):
+        @functools.wraps(function)
+        def wrapper(*args, **kwargs):
+            synchronize()
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                synchronize()
+                totals[name] += time.perf_counter() - start
+        return wrapper
+
+    def instrument(namespace):
+        for name in totals:
+            if name in namespace:
+                namespace[name] = timed(name, namespace[name])
+        log_scalars = namespace["log_scalars"]  # called once per update, after the update's row is written
+
+        def record_update(tensorboard, row, step):
+            log_scalars(tensorboard, row, step)
+            records.append({"update": row["update"], "elapsed": namespace["elapsed"], "protagonist_steps": row["env_steps"],
+                            "replay": row.get("replay"), **totals})
+            if len(records) == int(updates):
+                raise StopRun
+        namespace["log_scalars"] = record_update
+
+    namespace = run_script(path, list(argv), instrument)
+    peak = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_initialized() else None
+    with open(report_path, "w") as f:
+        json.dump({"updates": records, "device": str(namespace["device"]), "peak_gpu_memory_mib": peak}, f)
+
+
+def summarize(records: list[dict]) -> dict:
+    """Rates and shares over the updates after the first, from a run's per-update records (time_script's)."""
+    first, last = records[0], records[-1]
+    seconds = last["elapsed"] - first["elapsed"]
+    shares = {name: (last[name] - first[name]) / seconds for name in (*ROLLOUT_FUNCTIONS, UPDATE_FUNCTION) if last[name] > 0}
+    rollout = sum(share for name, share in shares.items() if name in ROLLOUT_FUNCTIONS)
+    replays = [record["replay"] for record in records[1:]]
+    return {"timed_updates": len(records) - 1, "seconds_per_update": seconds / (len(records) - 1),
+            "protagonist_steps_per_s": (last["protagonist_steps"] - first["protagonist_steps"]) / seconds,
+            "replay_updates": None if None in replays else sum(replays), "shares": shares,
+            "rollout_share": rollout, "ppo_update_share": shares.get(UPDATE_FUNCTION, 0.0),
+            "other_share": 1.0 - rollout - shares.get(UPDATE_FUNCTION, 0.0)}
+
+
+def measure(label: str, script: str, env: str, updates: int, flags: list[str], batch: int, device: str) -> dict:
+    """One timed run of `script` on `device` ("cuda" or "cpu"), in a temporary directory, with `batch` steps
+    per rollout."""
+    # A budget the run never reaches before it is stopped (a replay update of ACCEL or PAIRED+Evo counts two batches).
+    budget = 2 * (updates + 1) * batch
+    arguments = ["--env", env, "--total-timesteps", str(budget), *QUIET, *flags, "--cuda" if device == "cuda" else "--no-cuda"]
+    entry = {"run": label, "device": device, "command": " ".join(["python", script, *arguments]), "updates": updates}
+    start = time.time()
+    with tempfile.TemporaryDirectory() as cwd:
+        report = os.path.join(cwd, "report.json")
+        try:
+            result = subprocess.run([sys.executable, "-c", TIMED_CHILD, report, str(updates), os.path.join(ROOT, script), *arguments],
+                                    cwd=cwd, capture_output=True, text=True, timeout=RUN_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            return {**entry, "error": f"timed out after {RUN_TIMEOUT} s"}
+        if result.returncode != 0:
+            return {**entry, "error": (result.stderr.strip().splitlines() or ["no output"])[-1], "stderr_tail": result.stderr[-3000:]}
+        with open(report) as f:
+            timing = json.load(f)
+    if timing["device"] != device:
+        return {**entry, "error": f"ran on {timing['device']}, not {device}"}
+    return {**entry, **summarize(timing["updates"]), "peak_gpu_memory_mib": timing["peak_gpu_memory_mib"],
+            "wall_seconds": time.time() - start}
+
+
+def run_cuda_tests() -> dict:
+    """TESTS under pytest in a child process: each test's outcome ("file::test") and, if it did not pass, the
+    start of its report."""
+    start = time.time()
+    with tempfile.TemporaryDirectory() as scratch:
+        junit = os.path.join(scratch, "junit.xml")
+        command = [sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", f"--junitxml={junit}", *TESTS]
+        try:
+            result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=TESTS_TIMEOUT)
+        except subprocess.TimeoutExpired as timeout:
+            return {"error": f"timed out after {TESTS_TIMEOUT} s", "output_tail": (timeout.stdout or b"")[-6000:].decode(errors="replace")}
+        if not os.path.isfile(junit):
+            return {"error": f"pytest exited with {result.returncode}", "output_tail": (result.stdout + result.stderr)[-3000:]}
+        outcomes = {}
+        for case in ElementTree.parse(junit).getroot().iter("testcase"):
+            problem = next((child for child in case if child.tag in ("failure", "error", "skipped")), None)
+            outcome = {"failure": "failed", "error": "error", "skipped": "skipped"}.get(problem.tag if problem is not None else "", "passed")
+            name = f"{case.get('classname').split('.')[-1]}::{case.get('name')}"
+            outcomes[name] = {"outcome": outcome, "seconds": float(case.get("time", 0.0))}
+            if problem is not None:
+                outcomes[name]["message"] = ((problem.get("message") or "") + "\n" + (problem.text or ""))[:3000]
+    counts = {outcome: sum(o["outcome"] == outcome for o in outcomes.values()) for outcome in ("passed", "failed", "error", "skipped")}
+    return {"summary": (result.stdout.strip().splitlines() or [""])[-1], **counts, "seconds": time.time() - start, "results": outcomes}
+
+
+def cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            return next((line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name")), platform.processor())
+    except OSError:
+        return platform.processor()
+
+
+def commit() -> str | None:
+    """The checkout's commit, where git and the repository are at hand (a device machine's copy may have neither)."""
+    try:
+        result = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    except OSError:
+        return None
+    return result.stdout.strip() if result.returncode == 0 else None
+
+
+def describe_machine() -> dict:
+    import torch
+
+    machine = {"python": platform.python_version(), "torch": torch.__version__, "cuda": torch.version.cuda,
+               "cudnn": torch.backends.cudnn.version(), "cpu": cpu_name(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+               "commit": commit()}
+    if torch.cuda.is_available():
+        properties = torch.cuda.get_device_properties(0)
+        machine.update(gpu=properties.name, gpu_memory_gib=round(properties.total_memory / 2**30, 1))
+    return machine
+
+
+def speed_jobs(device: str, quick: bool) -> list[tuple]:
+    """measure's arguments for every run on `device`: at the paper's settings, or tiny."""
+    if quick:
+        return [(label, script, env, QUICK_UPDATES, [*flags, *QUICK_FLAGS[env], *quick_flags], QUICK_BATCH[env], device)
+                for label, script, env, _, flags, _, quick_flags in RUNS]
+    return [(label, script, env, updates, [*flags, *paper_flags], BATCH[env], device) for label, script, env, updates, flags, paper_flags, _ in RUNS]
+
+
+def time_runs(jobs: list[tuple], workers: int, report: dict, out: str) -> None:
+    """Measure each job, `workers` at a time, adding each entry to the report (written after each) and the log."""
+    print("protagonist steps/s over the updates after the first; shares of that time:", flush=True)
+    with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+        for entry in pool.map(lambda job: measure(*job), jobs):
+            report["speed"].append(entry)
+            print(speed_line(entry), flush=True)
+            write(report, out)
+
+
+def write(report: dict, path: str) -> None:
+    with open(path + ".tmp", "w") as f:
+        json.dump(report, f, indent=1)
+    os.replace(path + ".tmp", path)
+
+
+def speed_line(entry: dict) -> str:
+    head = f"  {entry['run']:45s} {entry['device']:4s}"
+    if "error" in entry:
+        return f"{head} failed: {entry['error']}"
+    memory = f", peak {entry['peak_gpu_memory_mib']:.0f} MiB" if entry["peak_gpu_memory_mib"] else ""
+    return (f"{head} {entry['protagonist_steps_per_s']:8.0f} steps/s | rollouts {entry['rollout_share']:4.0%}, "
+            f"PPO updates {entry['ppo_update_share']:4.0%}, other {entry['other_share']:4.0%}{memory}")
+
+
+class OneLineErrors(argparse.ArgumentParser):
+    def error(self, message):
+        print(f"error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+
+def main() -> None:
+    parser = OneLineErrors(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", required=True, help="the JSON file to write")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny runs of 2 updates, side by side on one thread each, and no CUDA tests: "
+                             "checks that every run works (a minute on 2 cores)")
+    options = parser.parse_args()
+    if not os.path.isdir(os.path.dirname(os.path.abspath(options.out))):
+        parser.error(f"--out {options.out}: no such directory")
+
+    import torch
+
+    start = time.time()
+    devices = ["cuda", "cpu"] if torch.cuda.is_available() else ["cpu"]
+    report = {"quick": options.quick, "machine": describe_machine(), "tests": None, "speed": []}
+    machine = report["machine"]
+    print(f"torch {machine['torch']}, CUDA {machine['cuda']}, cuDNN {machine['cudnn']}, Python {machine['python']}, "
+          f"{machine['cpu_count']} CPUs ({machine['cpu']}), torch threads {machine['torch_threads']}")
+    if "gpu" in machine:
+        print(f"GPU: {machine['gpu']}, {machine['gpu_memory_gib']} GiB")
+    else:
+        print("no CUDA here: only the CPU part runs (no CUDA tests, no GPU speed runs)")
+    write(report, options.out)
+    if options.quick:  # tiny runs, which time nothing worth keeping, side by side on every core, one thread each
+        os.environ["OMP_NUM_THREADS"] = "1"  # (torch's default pool in each of them would oversubscribe the cores)
+        time_runs([job for device in devices for job in speed_jobs(device, quick=True)], os.cpu_count(), report, options.out)
+    else:  # one at a time: the GPU runs, the CUDA tests, then the CPU runs (the least new if time runs out)
+        if "cuda" in devices:
+            time_runs(speed_jobs("cuda", quick=False), 1, report, options.out)
+            print(f"CUDA tests ({', '.join(TESTS)}) ...", flush=True)
+            report["tests"] = run_cuda_tests()
+            tests = report["tests"]
+            print(f"  {tests.get('summary') or tests['error']}")
+            for name, result in tests.get("results", {}).items():
+                if result["outcome"] in ("failed", "error"):
+                    print(f"  {result['outcome'].upper()} {name}: {result['message'].strip().splitlines()[0][:300]}")
+            write(report, options.out)
+        time_runs(speed_jobs("cpu", quick=False), 1, report, options.out)
+    report["seconds"] = time.time() - start
+    write(report, options.out)
+    print(f"wrote {options.out} in {report['seconds']:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
