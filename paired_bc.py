@@ -34,8 +34,8 @@ import envs
 from envs.evaluation import evaluate_all, to_torch
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
-                       true_regret_stats)
+from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
+                       select_device, student_and_generators, student_class, true_regret_stats)
 from envs.video import capture_videos
 
 
@@ -43,9 +43,9 @@ from envs.video import capture_videos
 # of the chosen env.
 @dataclass
 class Args:
-    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
-    defaults to the paper's value for it (`--env E --help` shows them)"""
+    env: Literal[tuple(envs.REGISTRY)] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing, walker or another env of
+    envs.REGISTRY; every option below defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "paired_bc_hient"
     """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
@@ -149,7 +149,7 @@ DEFAULT_DECIDING = {"bidirectional": bool}
 def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options` (the command line's defaults). A BiBC run is named
     paired_bibc_hient, so that it never merges with a UniBC one."""
-    args = Args(env=env, **{**PAPER_DEFAULTS[env], **options})
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "exp_name" not in options and args.bidirectional:
         args.exp_name = "paired_bibc_hient"
     return args
@@ -165,11 +165,12 @@ def resolve_args(args: Args) -> Args:
             saved = json.load(f)
         this_script = os.path.basename(__file__)
         script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        saved.pop("student", None)  # the student network's class, which student_class reads
         if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
             fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
-    if args.env not in PAPER_DEFAULTS:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
     check_track_file(args)
     if args.track:
         try:
@@ -178,7 +179,7 @@ def resolve_args(args: Args) -> Args:
             fail("--track needs Weights and Biases: pip install wandb")
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
+    recurrent = student_and_generators(args.env, args.resume)[0].is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
     if min(args.teacher_update_epochs, args.teacher_num_minibatches) <= 0:
         fail("--teacher-update-epochs and --teacher-num-minibatches must be positive")
     if recurrent and args.num_envs % args.teacher_num_minibatches != 0:
@@ -433,8 +434,8 @@ if __name__ == "__main__":
     mdp = env.teacher()
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
-    protagonist = env.Student().to(device)
-    antagonist = env.Student().to(device)
+    protagonist = student_class(env, args.resume)().to(device)  # a resumed run's own student class
+    antagonist = student_class(env, args.resume)().to(device)
     teacher_options = {"conv_channels": args.teacher_conv_channels} if args.env in ("maze", "maze25") else {}
     teacher = env.Teacher(mdp.num_steps, **teacher_options).to(device)
     agents = {"protagonist": protagonist, "antagonist": antagonist, "teacher": teacher}
@@ -474,7 +475,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(protagonist))}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:

@@ -34,8 +34,8 @@ import envs
 from envs.evaluation import evaluate_all, to_torch
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
-                       true_regret_stats)
+from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
+                       select_device, student_and_generators, student_class, true_regret_stats)
 from envs.video import capture_videos
 
 
@@ -43,9 +43,9 @@ from envs.video import capture_videos
 # of the chosen env.
 @dataclass
 class Args:
-    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
-    defaults to the paper's value for it (`--env E --help` shows them)"""
+    env: Literal[tuple(envs.REGISTRY)] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing, walker or another env of
+    envs.REGISTRY; every option below defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "paired_evo"
     """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
@@ -161,7 +161,6 @@ PAPER_DEFAULTS = {
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # PAIRED+Evo
 FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
-GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("sketch", "random"), "walker": ("random", "easy")}
 
 # The switches whose value changes other options' defaults: the command line reads them first.
 DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float}
@@ -170,9 +169,9 @@ DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "
 def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options`. --flexible takes its own replay rate; a run is named
     for its variant (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient...)."""
-    args = Args(env=env, **{**PAPER_DEFAULTS[env], **options})
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "replay_prob" not in options:
-        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB)[env]
+        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB).get(env, args.replay_prob)
     if "exp_name" not in options:
         cloning = ("_bibc" if args.bidirectional else "_unibc") if args.bc_coef > 0 else ""
         args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
@@ -189,12 +188,15 @@ def resolve_args(args: Args) -> Args:
             saved = json.load(f)
         this_script = os.path.basename(__file__)
         script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        saved.pop("student", None)  # the student network's class, which student_class reads
         if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
             fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
-    if args.env not in PAPER_DEFAULTS:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
     check_track_file(args)
+    student, generators = student_and_generators(args.env, args.resume)
+    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
     if args.track:
         try:
             import wandb  # noqa: F401
@@ -202,13 +204,12 @@ def resolve_args(args: Args) -> Args:
             fail("--track needs Weights and Biases: pip install wandb")
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
     if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
         fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
-    if args.generator not in GENERATORS[args.env]:
-        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
+    if args.generator not in generators:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
     if args.student_ent_coef < 0:
         fail("--student-ent-coef must be >= 0")
     if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
@@ -529,8 +530,8 @@ if __name__ == "__main__":
     level_rng = np.random.default_rng(args.seed + 1)  # level generation, edits and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
-    protagonist = env.Student().to(device)
-    antagonist = env.Student().to(device)
+    protagonist = student_class(env, args.resume)().to(device)  # a resumed run's own student class
+    antagonist = student_class(env, args.resume)().to(device)
     students = {"protagonist": protagonist, "antagonist": antagonist}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in students.items()}
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
@@ -569,7 +570,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(protagonist))}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:

@@ -36,8 +36,8 @@ import envs
 from envs.evaluation import evaluate_all, to_torch
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, fail, log_image, log_scalars, parse_command_line, save_checkpoint, select_device,
-                       true_regret_stats)
+from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
+                       select_device, student_and_generators, student_class, true_regret_stats)
 from envs.video import capture_videos
 
 
@@ -45,9 +45,9 @@ from envs.video import capture_videos
 # of the chosen env.
 @dataclass
 class Args:
-    env: Literal["maze", "maze25", "carracing", "walker"] = "maze"
-    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing or walker; every option below
-    defaults to the paper's value for it (`--env E --help` shows them)"""
+    env: Literal[tuple(envs.REGISTRY)] = "maze"
+    """environment: maze (uniform 0-60 walls), maze25 (25 walls), carracing, walker or another env of
+    envs.REGISTRY; every option below defaults to the paper's value for it (`--env E --help` shows them)"""
     exp_name: str = "robust_plr"
     """name of this experiment, part of the run directory's name; the default names the variant"""
     seed: int = 1
@@ -147,7 +147,6 @@ PAPER_DEFAULTS = {
                    staleness_coef=0.5, eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
-GENERATORS = {"maze": ("random", "empty"), "maze25": ("random", "empty"), "carracing": ("random", "sketch"), "walker": ("random",)}
 
 # The switches whose value changes other options' defaults: the command line reads them first.
 DEFAULT_DECIDING = {"replay_prob": float, "robust": bool}
@@ -157,7 +156,7 @@ def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options` (the command line's defaults). CarRacing's PLR draws
     new levels as sketches (the reference PLR's random teacher), its DR continuous random tracks. A run is
     named for its variant: robust_plr, plr (--no-robust) or dr (--replay-prob 0)."""
-    args = Args(env=env, **{**PAPER_DEFAULTS[env], **options})
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "generator" not in options:
         args.generator = "sketch" if env == "carracing" and args.replay_prob > 0 else "random"
     if "exp_name" not in options:
@@ -175,22 +174,24 @@ def resolve_args(args: Args) -> Args:
             saved = json.load(f)
         this_script = os.path.basename(__file__)
         script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+        saved.pop("student", None)  # the student network's class, which student_class reads
         if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
             fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
         args = Args(**{**saved, "resume": args.resume})
-    if args.env not in PAPER_DEFAULTS:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(PAPER_DEFAULTS)}")
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
     check_track_file(args)
+    student, generators = student_and_generators(args.env, args.resume)
+    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
     if args.track:
         try:
             import wandb  # noqa: F401
         except ImportError:
             fail("--track needs Weights and Biases: pip install wandb")
-    if args.generator not in GENERATORS[args.env]:
-        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(GENERATORS[args.env])}")
+    if args.generator not in generators:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
     if min(args.num_envs, args.num_minibatches) <= 0:
         fail("--num-envs and --num-minibatches must be positive")
-    recurrent = args.env in ("maze", "maze25")  # the maze's students are LSTMs: minibatches of whole rollouts
     if recurrent and args.num_envs % args.num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
     if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
@@ -493,7 +494,7 @@ if __name__ == "__main__":
     level_rng = np.random.default_rng(args.seed + 1)  # level generation and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
-    agent = env.Student().to(device)
+    agent = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
     storage = Rollout(env, args.num_steps, args.num_envs, device)
@@ -529,7 +530,7 @@ if __name__ == "__main__":
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         os.makedirs(run_dir)
         with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__)}, f, indent=2)
+            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(agent))}, f, indent=2)
         with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
             csv.DictWriter(f, fieldnames=metrics).writeheader()
     if args.track:

@@ -2,20 +2,46 @@
 
 `make(name, num_envs, seed)` returns the env object whose interface every script relies on, written
 down in envs/interface.py (`Env`): random_levels, reset, step, test_levels, mutate, level_metrics,
-render, teacher, Student, Teacher and the rest. Importing `envs` changes nothing in the process; each
+render, teacher, Student, Teacher and the rest. `REGISTRY` names every env: adding an env is one module
+that implements the interface and one entry there, and every script's `--env` then offers it. Importing
+`envs` changes nothing in the process (an env's module is imported when it is first made); each
 script's main calls `keep_freed_memory()` first.
 """
 
 from __future__ import annotations
 
 import ctypes
+import importlib
 import platform
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from envs.interface import Env
 
-ENV_NAMES = ("maze", "maze25", "carracing", "walker")
+
+@dataclass(frozen=True)
+class Registered:
+    """How to make one env of the registry."""
+
+    env_class: str
+    """its class as "module:name", imported when the env is first made and built as
+    `cls(num_envs=..., seed=..., **options)`"""
+    options: dict = field(default_factory=dict)
+    """further keyword arguments of the class"""
+    evaluation_episodes: int = 100
+    """episodes per held-out level when `python -m envs.evaluate` is not told (a run's args.json tells it)"""
+
+
+# name -> how to make it: the `--env` choices of every script and of envs/evaluate.py. A script's paper
+# settings for an env (its PAPER_DEFAULTS) belong to the algorithm; an env without them runs on the
+# script's defaults.
+REGISTRY: dict[str, Registered] = {
+    "maze": Registered("envs.maze:MazeEnv", {"name": "maze"}),
+    "maze25": Registered("envs.maze:MazeEnv", {"name": "maze25"}),
+    "carracing": Registered("envs.carracing:CarRacingEnv", evaluation_episodes=10),
+    "walker": Registered("envs.walker:WalkerEnv"),
+}
 
 
 def keep_freed_memory() -> None:
@@ -39,17 +65,10 @@ def keep_freed_memory() -> None:
 
 
 def make(name: str, num_envs: int, seed: int) -> Env:
-    """The env `name` (one of ENV_NAMES) with num_envs copies, its random stream seeded with seed."""
-    if name in ("maze", "maze25"):
-        from envs.maze import MazeEnv
-
-        return MazeEnv(name, num_envs, seed)
-    if name == "carracing":
-        from envs.carracing import CarRacingEnv
-
-        return CarRacingEnv(num_envs, seed)
-    if name == "walker":
-        from envs.walker import WalkerEnv
-
-        return WalkerEnv(num_envs, seed)
-    raise ValueError(f"unknown env {name!r}: expected one of {', '.join(ENV_NAMES)}")
+    """The env `name` (a key of REGISTRY) with num_envs copies, its random stream seeded with seed."""
+    if name not in REGISTRY:
+        raise ValueError(f"unknown env {name!r}: expected one of {', '.join(REGISTRY)}")
+    registered = REGISTRY[name]
+    module, _, class_name = registered.env_class.partition(":")
+    env_class = getattr(importlib.import_module(module), class_name)
+    return env_class(num_envs=num_envs, seed=seed, **registered.options)

@@ -4,7 +4,9 @@
     python -m envs.evaluate results/maze/accel/1/agent.pt --env maze  # a student's weights alone
 
 A run directory holds args.json and checkpoint.pt (the student is its "agent", or the PAIRED scripts'
-"protagonist") or agent.pt (the student's state dict). The defaults are the run's env, seed and
+"protagonist") or agent.pt (the student's state dict). The student is rebuilt as the class its args.json
+records ("student", module:qualname: a modified student is evaluated as it trained), else as the env's
+Student. The defaults are the run's env, seed and
 number of evaluation episodes, those of its own final evaluation: a finished run's checkpoint.pt gives
 its eval.json again (with the same code on the same CPU). Checkpoints are pickles: load only your own.
 Writes OUT/eval.json, OUT/eval.png (solved rate per level) and OUT/videos/<level>.gif (one episode
@@ -22,10 +24,8 @@ import torch
 
 import envs
 from envs.evaluation import evaluate_all
-from envs.runs import fail
+from envs.runs import fail, import_class
 
-# The scripts' default episodes per held-out level: CarRacing's episodes are long.
-DEFAULT_EPISODES = {"maze": 100, "maze25": 100, "carracing": 10, "walker": 100}
 DEFAULT_SEED = 1  # the scripts' default seed
 
 
@@ -38,10 +38,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 "of the solved rate and a GIF of one episode per level.")
     parser.add_argument("source", help="a run directory (args.json with checkpoint.pt or agent.pt) or a .pt file: a "
                                        "run's checkpoint.pt or a student's state dict")
-    parser.add_argument("--env", choices=envs.ENV_NAMES, default=None,
+    parser.add_argument("--env", choices=tuple(envs.REGISTRY), default=None,
                         help="the env the student was trained on (default: the run's, from args.json)")
     parser.add_argument("--episodes", type=int, default=None,
-                        help="episodes per held-out level (default: the run's eval_episodes, else 100; 10 on carracing)")
+                        help="episodes per held-out level (default: the run's eval_episodes, else the env's: 100; 10 on carracing)")
     parser.add_argument("--seed", type=int, default=None, help=f"evaluation seed (default: the run's, else {DEFAULT_SEED})")
     parser.add_argument("--levels", nargs="+", default=None, help="held-out levels to evaluate (default: all of the env's)")
     parser.add_argument("--capture-video", action=argparse.BooleanOptionalAction, default=True,
@@ -126,10 +126,10 @@ def main(argv=None) -> None:
     weights, run_args = find_weights(options.source)
     env_name = options.env or run_args.get("env")
     if env_name is None:
-        fail(f"no args.json beside {weights}: name its env with --env ({', '.join(envs.ENV_NAMES)})")
-    if env_name not in envs.ENV_NAMES:
-        fail(f"unknown env {env_name!r} in args.json: expected one of {', '.join(envs.ENV_NAMES)}")
-    episodes = options.episodes or run_args.get("eval_episodes") or DEFAULT_EPISODES[env_name]
+        fail(f"no args.json beside {weights}: name its env with --env ({', '.join(envs.REGISTRY)})")
+    if env_name not in envs.REGISTRY:
+        fail(f"unknown env {env_name!r} in args.json: expected one of {', '.join(envs.REGISTRY)}")
+    episodes = options.episodes or run_args.get("eval_episodes") or envs.REGISTRY[env_name].evaluation_episodes
     seed = options.seed if options.seed is not None else run_args.get("seed", DEFAULT_SEED)
     if options.episodes is not None and options.episodes < 1:
         fail(f"--episodes must be positive, got {options.episodes}")
@@ -145,7 +145,8 @@ def main(argv=None) -> None:
         os.environ["CLEANUED_F1_TRACKS"] = track_file  # where the env reads its held-out tracks from
     env = envs.make(env_name, 1, seed)
     held_out = list(env.test_levels())
-    student = env.Student()
+    student_class = import_class(run_args["student"]) if "student" in run_args else env.Student
+    student = student_class()
     env.close()
     names = options.levels or held_out
     unknown = [name for name in names if name not in held_out]
@@ -154,7 +155,8 @@ def main(argv=None) -> None:
     state = student_state_dict(weights)
     difference = mismatch(student.state_dict(), state)
     if difference:
-        fail(f"{weights} does not hold a {env_name} student ({difference}): a checkpoint of another env or script?")
+        fail(f"{weights} does not hold a {env_name} student ({student_class.__qualname__}: {difference}): a checkpoint of "
+             "another env, script or student?")
     student.load_state_dict(state)
 
     device = torch.device("cuda" if torch.cuda.is_available() and options.cuda else "cpu")

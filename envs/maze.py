@@ -430,20 +430,23 @@ class MazeEnv:
 # ---------------------------------------------------------------------------------------------------
 class MazeStudent(RecurrentCategoricalActorCritic):
     """Conv 3->16 (3x3) on the 5x5 view -> 144, ReLU; direction one-hot -> Linear 5; LSTM 256;
-    actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1.
+    actor 256 -> 32 tanh -> 7 logits; critic 256 -> 32 tanh -> 1. `conv_channels` and `hidden_size` (the
+    LSTM's) change its sizes; a run records the class it trained, which evaluation and --resume build with
+    no arguments, so other sizes belong in a subclass's defaults.
 
     To try another network, subclass it: a subclass runs exactly what it defines. This class itself
-    acts through a faster path derived from it (envs/fast_paths.py), which tests/test_fast_paths.py
-    checks against it."""
+    acts through a faster path derived from it, at any sizes (envs/fast_paths.py), which
+    tests/test_fast_paths.py checks against it."""
 
     FastPath = MazeStudentFastPath
     image_scale = 10.0  # the view's MiniGrid codes are divided by 10
+    direction_size = 5  # the direction embedding's width
 
-    def __init__(self, hidden_size: int = 256):
+    def __init__(self, hidden_size: int = 256, conv_channels: int = 16):
         super().__init__()
-        self.conv = layer_init(nn.Conv2d(3, 16, 3))
-        self.direction_embed = layer_init(nn.Linear(4, 5))
-        self.lstm = ResettableLSTM(16 * 3 * 3 + 5, hidden_size)
+        self.conv = layer_init(nn.Conv2d(3, conv_channels, 3))
+        self.direction_embed = layer_init(nn.Linear(4, self.direction_size))
+        self.lstm = ResettableLSTM(conv_channels * (VIEW_SIZE - 2) ** 2 + self.direction_size, hidden_size)
         self.actor = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, NUM_ACTIONS), gain=0.01))
         self.critic = nn.Sequential(layer_init(nn.Linear(hidden_size, 32)), nn.Tanh(), layer_init(nn.Linear(32, 1), gain=1.0))
 

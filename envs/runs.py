@@ -1,12 +1,15 @@
 """What every algorithm script does around its algorithm: read the command line (one `error:` line for
-bad input), check CarRacing's track file, set up the device, write checkpoints atomically, log metrics and
-level images, and measure how well a curriculum's score tracks the true regret."""
+bad input), check CarRacing's track file, find the student class a run trains, set up the device, write
+checkpoints atomically, log metrics and level images, and measure how well a curriculum's score tracks the
+true regret."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import io
+import json
 import os
 import re
 import sys
@@ -16,6 +19,7 @@ import torch
 import tyro
 from matplotlib.image import imread
 
+import envs
 from envs import keep_freed_memory
 
 
@@ -32,7 +36,7 @@ def parse_command_line(args_class, paper_args, default_deciding: dict, descripti
     a bad option (a value of the wrong type, an unknown option) in a box of many lines: its first
     paragraph becomes one `error:` line, as every other bad input."""
     first = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
-    first.add_argument("--env", default="maze")
+    first.add_argument("--env", default="maze", choices=tuple(envs.REGISTRY))
     for name, kind in default_deciding.items():
         flag = "--" + name.replace("_", "-")
         if kind is bool:
@@ -74,6 +78,48 @@ def check_track_file(args) -> None:
             except ValueError as error:
                 fail(str(error))
         os.environ["CLEANUED_F1_TRACKS"] = path
+
+
+def class_path(cls: type) -> str:
+    """The class as "module:qualname", as a run's args.json records its student's class. A class defined in
+    the script being run (module __main__) is named by the script's module, so that it can be imported again."""
+    module = cls.__module__
+    if module == "__main__":
+        module = os.path.splitext(os.path.basename(sys.modules["__main__"].__file__))[0]
+    return f"{module}:{cls.__qualname__}"
+
+
+def import_class(path: str) -> type:
+    """The class `class_path` named; one `error:` line if it cannot be imported."""
+    module, _, qualname = path.partition(":")
+    try:
+        found = importlib.import_module(module)
+        for name in qualname.split("."):
+            found = getattr(found, name)
+    except Exception as error:  # importing a module can raise anything
+        fail(f"cannot import the run's student class {path} ({type(error).__name__}: {error}); run from the folder "
+             "where its module can be imported")
+    return found
+
+
+def student_class(env, resume: str | None) -> type:
+    """The student network class a run trains: a resumed run's own, as its args.json records it ("student",
+    module:qualname; one `error:` line if it cannot be imported), else the env's Student."""
+    if resume is not None:
+        with open(os.path.join(resume, "args.json")) as f:
+            recorded = json.load(f).get("student")  # (runs written before it was recorded: the env's)
+        if recorded is not None:
+            return import_class(recorded)
+    return env.Student
+
+
+def student_and_generators(env_name: str, resume: str | None) -> tuple[type, tuple[str, ...]]:
+    """What a script checks its options against before any work: the student class it will train
+    (`student_class`: its is_recurrent decides how PPO splits minibatches) and the names of the env's
+    level generators."""
+    env = envs.make(env_name, 1, 0)
+    env.close()
+    return student_class(env, resume), tuple(env.level_generators)
 
 
 def select_device(use_cuda: bool, torch_deterministic: bool, env: str) -> torch.device:

@@ -15,6 +15,7 @@ import pytest
 
 import envs
 from envs.interface import Env, TeacherMDP
+from toy_env import ToyEnv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = ("paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py", "accel.py", "plr.py")
@@ -36,10 +37,11 @@ def attributes_used(path: str, variable: str) -> set[str]:
     return {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == variable}
 
 
-@pytest.fixture(scope="module", params=envs.ENV_NAMES)
+@pytest.fixture(scope="module", params=(*envs.REGISTRY, "toy"))
 def named_env(request):
+    """Every registered env, and the toy env of tests/toy_env.py (a 1-D corridor, made directly)."""
     os.environ.setdefault("CLEANUED_F1_TRACKS", "none")  # vanilla and the built-in tracks: quick
-    made = envs.make(request.param, 2, 0)
+    made = ToyEnv(2, 0) if request.param == "toy" else envs.make(request.param, 2, 0)
     yield request.param, made
     made.close()
 
@@ -86,15 +88,19 @@ def test_every_env_keeps_the_interface_promises(env):
     assert images.dtype == np.uint8 and images.ndim == 4 and images.shape[0] == 2 and images.shape[3] == 3
 
 
-def test_every_env_draws_a_trajectory_on_its_level_image(named_env):
-    """render_trajectory: the level's own image (as render draws it) with the path changing some pixels."""
-    name, env = named_env
-    levels = env.random_levels(1, np.random.default_rng(1))
-    if name.startswith("maze"):  # grid cells: every free cell
-        y, x = np.nonzero(~levels.walls[0])
-        positions = np.stack([x, y], axis=1)
-    else:  # world units: a line along the start of the course, or across the playfield
-        positions = np.stack([np.linspace(5.0, 40.0, 60), np.full(60, 4.0)], axis=1)
+def test_every_env_draws_a_trajectory_on_its_level_image(env):
+    """render_trajectory: the level's own image (as render draws it) with the path changing some pixels.
+    The path is the agent's own, as agent_positions gives it (in whatever units the env draws), over 40
+    steps of a fixed action sequence: the positions of the first copy before each step."""
+    levels = env.random_levels(2, np.random.default_rng(1))
+    env.reset(levels, max_steps=200)
+    env.single_action_space.seed(0)
+    positions = []
+    for _ in range(40):
+        positions.append(env.agent_positions()[0])
+        env.step(np.stack([env.single_action_space.sample() for _ in range(2)]))
+    positions = np.array(positions)
+    levels = levels[:1]
     image = env.render(levels)[0]
     drawn = env.render_trajectory(levels[0], positions)
     assert drawn.shape == image.shape and drawn.dtype == np.uint8
