@@ -1,6 +1,7 @@
 """The helpers every script carries its own copy of (single-file scripts, by design) are still the same
 code, so a worked example run on one copy covers them all. Copies are compared as syntax trees without
-docstrings; the few that differ on purpose are listed with the scripts whose copies must still agree."""
+docstrings; the few that differ on purpose are listed in DIFFERENT_BY_DESIGN with the scripts whose copies
+must still agree. A fork that changes one copy on purpose lists it there too (docs/modifying.md)."""
 
 from __future__ import annotations
 
@@ -34,27 +35,54 @@ def without_docstrings(node: ast.AST) -> ast.AST:
     return node
 
 
-def top_level_definitions(script: str) -> dict[str, str]:
-    """{name: its code as a docstring-free syntax tree dump} of the script's functions and classes."""
-    with open(os.path.join(ROOT, script)) as f:
-        tree = ast.parse(f.read())
+def top_level_definitions(source: str) -> dict[str, str]:
+    """{name: its code as a docstring-free syntax tree dump} of a script's functions and classes."""
+    tree = ast.parse(source)
     return {node.name: ast.dump(without_docstrings(node)) for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
 
 
-DEFINITIONS = {script: top_level_definitions(script) for script in SCRIPTS}
+def read(script: str) -> str:
+    with open(os.path.join(ROOT, script)) as f:
+        return f.read()
+
+
+DEFINITIONS = {script: top_level_definitions(read(script)) for script in SCRIPTS}
 SHARED = sorted({name for names in DEFINITIONS.values() for name in names
                  if sum(name in DEFINITIONS[script] for script in SCRIPTS) > 1})
+
+
+def differing_copies(definitions: dict, name: str, different_by_design: dict) -> list[str]:
+    """How the copies of a helper break the rule: all identical, or within each group that
+    different_by_design lists for it."""
+    holders = [script for script in SCRIPTS if name in definitions[script]]
+    groups = different_by_design[name][0] if name in different_by_design else [holders]
+    found = []
+    for group in groups:
+        differing = [script for script in group if definitions[script][name] != definitions[group[0]][name]]
+        if differing:
+            found.append(f"{name} in {', '.join(differing)} differs from its copy in {group[0]}: keep the copies identical, "
+                         "or, if it diverges on purpose, list it in DIFFERENT_BY_DESIGN with the scripts whose copies must still agree")
+    return found
 
 
 @pytest.mark.parametrize("name", SHARED)
 def test_copies_of_a_helper_are_identical(name):
     """Catches a slip in one copy of a duplicated helper (say `** T` for `** (1 / T)` in one of the
     three copies of rank_weights, of which a worked example tests one)."""
-    holders = [script for script in SCRIPTS if name in DEFINITIONS[script]]
-    groups = DIFFERENT_BY_DESIGN[name][0] if name in DIFFERENT_BY_DESIGN else [holders]
-    for group in groups:
-        differing = [script for script in group if DEFINITIONS[script][name] != DEFINITIONS[group[0]][name]]
-        assert not differing, f"{name} in {', '.join(differing)} differs from its copy in {group[0]}"
+    differing = differing_copies(DEFINITIONS, name, DIFFERENT_BY_DESIGN)
+    assert not differing, differing[0]
+
+
+def test_a_changed_copy_fails_until_it_is_listed_as_diverging_on_purpose():
+    """docs/modifying.md's recipe for a fork: a copy changed in one script is reported, and listing it in
+    DIFFERENT_BY_DESIGN (no group: no copy compared; or the groups that must still agree) accepts it."""
+    changed = read("plr.py").replace("weights = (1.0 / ranks) ** (1.0 / temperature)", "weights = (1.0 / ranks) ** (2.0 / temperature)")
+    definitions = {**DEFINITIONS, "plr.py": top_level_definitions(changed)}
+    (report,) = differing_copies(definitions, "rank_weights", DIFFERENT_BY_DESIGN)
+    assert report.startswith("rank_weights in accel.py, paired_evo.py differs from its copy in plr.py") and "DIFFERENT_BY_DESIGN" in report
+    others = [script for script in SCRIPTS if script != "plr.py" and "rank_weights" in DEFINITIONS[script]]
+    marked = {**DIFFERENT_BY_DESIGN, "rank_weights": ([others], "plr.py sharpens its replay distribution")}
+    assert differing_copies(definitions, "rank_weights", marked) == []
 
 
 @pytest.mark.parametrize("name", sorted(DIFFERENT_BY_DESIGN))
