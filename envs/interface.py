@@ -2,7 +2,8 @@
 
 `envs.make(name, num_envs, seed)` returns an `Env`: the maze (envs/maze.py), CarRacing
 (envs/carracing.py) and the walker (envs/walker.py) each implement every member below, and the scripts
-and envs/evaluation.py use nothing else, so a new env that implements these runs under every script.
+and envs/evaluation.py use nothing else, so a new env that implements these runs under every script once
+registered in envs.REGISTRY.
 `env.teacher()` returns a `TeacherMDP`, PAIRED's adversary environment.
 
 Levels travel as a level batch: a dataclass of numpy arrays with one row per level (envs/levels.py's
@@ -56,7 +57,8 @@ class Env(Protocol):
     Levels: type[LevelBatch]
     """The level batch class, e.g. to load a level buffer from a checkpoint."""
     Student: type[nn.Module]
-    """The paper's student network class, built as Student() (the interface of envs/nets.py)."""
+    """The paper's student network class, built as Student() (the interface of envs/nets.py); its
+    `is_recurrent` decides how PPO splits minibatches."""
     Teacher: type[nn.Module]
     """The paper's adversary network class, built as Teacher(num_steps, **options)."""
     solved_threshold: float
