@@ -17,7 +17,7 @@ PAIRED_FAMILY = ["paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py"
 DIFFERENT_BY_DESIGN = {
     "Args": ([], "each script's own options"),
     "resolve_args": ([["paired.py", "paired_hient.py"]], "each script checks its own options"),
-    "paper_args": ([["paired.py", "paired_hient.py", "accel.py"]], "a variant's defaults and run name are its script's"),
+    "paper_args": ([["paired.py", "paired_hient.py"]], "a variant's defaults and run name are its script's"),
     "metric_names": ([["paired.py", "paired_hient.py"]], "each script logs its own columns"),
     "Rollout": ([PLR_FAMILY, PAIRED_FAMILY], "shaped from the env, or from a first observation (three agents)"),
     "minibatch_rows": ([PLR_FAMILY, PAIRED_FAMILY], "PAIRED's serves students and teacher of other sizes"),
@@ -48,8 +48,8 @@ SHARED = sorted({name for names in DEFINITIONS.values() for name in names
 
 @pytest.mark.parametrize("name", SHARED)
 def test_copies_of_a_helper_are_identical(name):
-    """Catches a slip in one copy of a duplicated helper (say `** T` for `** (1 / T)` in one of the
-    three copies of rank_weights, of which a worked example tests one)."""
+    """Catches a slip in one copy of a duplicated helper (say `<=` for `<` in one of the three copies
+    of decide_replay, of which a worked example tests one)."""
     holders = [script for script in SCRIPTS if name in DEFINITIONS[script]]
     groups = DIFFERENT_BY_DESIGN[name][0] if name in DIFFERENT_BY_DESIGN else [holders]
     for group in groups:
