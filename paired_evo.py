@@ -13,6 +13,9 @@ Appendix C ("Combining it all") is one command:
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10                  # PAIRED+Evo+UniBC
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --student-ent-coef 0.005  # +UniBC+HiEnt
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --bidirectional  # PAIRED+Evo+BiBC
+
+`--score-function` ranks the buffer by the protagonist's positive value loss, MaxMC or learnability
+(envs/scores.py) in place of the regret.
 """
 
 from __future__ import annotations
@@ -32,10 +35,13 @@ from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
+from envs.levels import LevelBuffer
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
 from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
                        select_device, student_and_generators, student_class, true_regret_stats)
+from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, highest_returns, level_scores,
+                         score_true_regret_correlations)
 from envs.video import capture_videos
 
 
@@ -115,6 +121,9 @@ class Args:
     """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
     staleness_coef: float = 0.5
     """rho, weight of staleness in the replay distribution (paper: 0.5)"""
+    score_function: Literal["regret", "positive_value_loss", "max_mc", "learnability"] = "regret"
+    """a level's score: the regret U(A) - U(P) (the paper's), or the protagonist's positive value loss, MaxMC
+    (JaxUED's) or learnability (SFL's), as plr.py's --score-function"""
 
     # Editing
     generator: Literal["random", "empty", "easy", "sketch"] = "random"
@@ -163,18 +172,21 @@ REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # P
 FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
 
 # The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float}
+DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float, "score_function": str}
 
 
 def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options`. --flexible takes its own replay rate; a run is named
-    for its variant (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient...)."""
+    for its variant and a score other than the regret (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient,
+    paired_evo_maxmc...)."""
     args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "replay_prob" not in options:
         args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB).get(env, args.replay_prob)
     if "exp_name" not in options:
         cloning = ("_bibc" if args.bidirectional else "_unibc") if args.bc_coef > 0 else ""
         args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
+        if args.score_function != "regret":
+            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
     return args
 
 
@@ -227,7 +239,8 @@ def resolve_args(args: Args) -> Args:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The level buffer of high-regret levels: Robust PLR's replay distribution.
+# The level buffer's scores, replay decision and parents (the buffer and its replay distribution, Robust
+# PLR's: envs/levels.py).
 # ---------------------------------------------------------------------------------------------------
 def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     """Algorithm 2's score U(A) - U(P) per level: max antagonist return - mean protagonist return over the
@@ -247,21 +260,6 @@ def flexible_regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     a_max = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
     return np.maximum(np.where(a_max > p_max, a_max - p_mean, p_max - a_mean), 0.0)
 
-def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
-    """P_S: proportional to (1 / rank)^(1 / T), rank 1 the highest score."""
-    ranks = np.empty(len(scores))
-    ranks[np.argsort(-scores, kind="stable")] = np.arange(1, len(scores) + 1)
-    weights = (1.0 / ranks) ** (1.0 / temperature)
-    return weights / weights.sum()
-
-
-def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
-    """P_C: proportional to the updates since each level was last sampled (uniform if all fresh)."""
-    staleness = (update - last_sampled).astype(np.float64)
-    total = staleness.sum()
-    return staleness / total if total > 0 else np.full(len(staleness), 1.0 / len(staleness))
-
-
 def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> bool:
     """The replay decision (Algorithm 2, line 3): replay with probability p once the buffer is full enough."""
     if buffer_size < args.min_fill_ratio * args.level_buffer_size:
@@ -277,62 +275,6 @@ def select_parents(scores: np.ndarray, edit_levels: str) -> np.ndarray:
         return np.arange(len(scores))
     easy = np.argsort(scores, kind="stable")[: len(scores) // 2]
     return np.concatenate([easy, easy])
-
-
-class LevelBuffer:
-    """The PLR level buffer: levels, their scores and the update each was last sampled at."""
-
-    def __init__(self, capacity: int, temperature: float, staleness_coef: float):
-        self.capacity = capacity
-        self.temperature = temperature
-        self.staleness_coef = staleness_coef
-        self.levels = None
-        self.scores = np.zeros(0)
-        self.last_sampled = np.zeros(0, dtype=np.int64)
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    def replay_weights(self, update: int) -> np.ndarray:
-        """P = (1 - rho) P_S + rho P_C."""
-        return (1 - self.staleness_coef) * rank_weights(self.scores, self.temperature) + self.staleness_coef * staleness_weights(self.last_sampled, update)
-
-    def sample(self, n: int, update: int, rng: np.random.Generator) -> np.ndarray:
-        """Indices of n levels drawn from P (with replacement); they become fresh."""
-        index = rng.choice(len(self), size=n, p=self.replay_weights(update))
-        self.last_sampled[index] = update
-        return index
-
-    def update_scores(self, index: np.ndarray, scores: np.ndarray) -> None:
-        self.scores[index] = scores
-
-    def insert(self, levels, scores: np.ndarray, update: int) -> int:
-        """Offer new levels one by one: each enters if there is room, or replaces the level of lowest
-        replay weight if it scores higher than that level. Returns how many entered."""
-        entered = 0
-        for i in range(len(scores)):
-            if len(self) < self.capacity:
-                self.levels = levels[i] if self.levels is None else type(levels).concat([self.levels, levels[i]])
-                self.scores = np.append(self.scores, scores[i])
-                self.last_sampled = np.append(self.last_sampled, update)
-                entered += 1
-                continue
-            lowest = int(np.argmin(self.replay_weights(update)))
-            if scores[i] > self.scores[lowest]:
-                self.levels[lowest] = levels[i]
-                self.scores[lowest] = scores[i]
-                self.last_sampled[lowest] = update
-                entered += 1
-        return entered
-
-    def state_dict(self) -> dict:
-        levels = None if self.levels is None else self.levels.state_dict()
-        return {"levels": levels, "scores": self.scores, "last_sampled": self.last_sampled}
-
-    def load_state_dict(self, state: dict, level_type) -> None:
-        self.levels = None if state["levels"] is None else level_type.from_state_dict(state["levels"])
-        self.scores = np.asarray(state["scores"])
-        self.last_sampled = np.asarray(state["last_sampled"])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -508,6 +450,7 @@ def metric_names(env) -> list[str]:
     return ["update", "env_steps", "student_steps", "sps", "replay", "protagonist_return", "antagonist_return",
             "protagonist_solved", "antagonist_solved", "regret", "buffer_size", "buffer_mean_score", *env.level_metric_names,
             "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
+            *(f"{name}_true_regret_correlation" for name in SCORE_FUNCTIONS),
             "children_entered", "child_score", *(f"child_{name}_change" for name in env.level_metric_names),
             *(f"{name}_{stat}" for name in ("protagonist", "antagonist") for stat in PPO_STATS), "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
@@ -539,6 +482,12 @@ if __name__ == "__main__":
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in students} if args.normalize_returns else {}
     metrics = metric_names(env)
     start_update, global_step, student_steps, gradient_updates, elapsed = 1, 0, 0, 0, 0.0
+
+    def protagonist_scores(advantages, returns_per_level, highest) -> dict:
+        """Every level score of the protagonist's rollout just played (the antagonist's next overwrites it)."""
+        final_dones = ended_at_rollout_end(storage.dones, returns_per_level)
+        return level_scores(advantages, storage.values, storage.dones, final_dones, returns_per_level, highest,
+                            env.solved_threshold, normalizers.get("protagonist"))
 
     if args.resume:
         run_dir = args.resume
@@ -602,12 +551,16 @@ if __name__ == "__main__":
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
                 advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
+                if name == "protagonist":
+                    highest = buffer.raise_highest_returns(replay_index, highest_returns(returns_of[name]))
+                    scores_of = protagonist_scores(advantages, returns_of[name], highest)
                 students[name].train()
                 stats[name] = ppo_update(students[name], optimizers[name], storage, advantages, returns, args.student_ent_coef, args,
                                          update, device, clone_target=clone_targets[name], bc_coef=args.bc_coef)
                 if clone_targets[name] is not None:
                     stats[f"kl_{name}"] = stats[name]["kl"]
-            scores = score_levels(returns_of["protagonist"], returns_of["antagonist"])
+            regrets = score_levels(returns_of["protagonist"], returns_of["antagonist"])
+            scores = {"regret": regrets, **scores_of}[args.score_function]
             buffer.update_scores(replay_index, scores)
             # Lines 18-23: edit the replayed levels, evaluate the children with both students without
             # gradient, score them by regret and offer them to the buffer.
@@ -616,9 +569,14 @@ if __name__ == "__main__":
             child_returns, played_children = {}, env.draw_starts(children)
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, child_returns[name] = student_rollout(students[name], env, played_children, storage, args, device, normalizers.get(name))
-            child_scores = score_levels(child_returns["protagonist"], child_returns["antagonist"])
-            entered = buffer.insert(children, child_scores, update)
+                child_advantages, _, child_returns[name] = student_rollout(students[name], env, played_children, storage, args, device,
+                                                                           normalizers.get(name))
+                if name == "protagonist":
+                    child_highest = highest_returns(child_returns[name])
+                    child_scores_of = protagonist_scores(child_advantages, child_returns[name], child_highest)
+            child_regrets = score_levels(child_returns["protagonist"], child_returns["antagonist"])
+            child_scores = {"regret": child_regrets, **child_scores_of}[args.score_function]
+            entered = buffer.insert(children, child_scores, update, child_highest)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
             edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
                           **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}}
@@ -629,23 +587,28 @@ if __name__ == "__main__":
             played = env.draw_starts(levels)
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                _, _, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
-            scores = score_levels(returns_of["protagonist"], returns_of["antagonist"])
-            buffer.insert(levels, scores, update)
+                advantages, _, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
+                if name == "protagonist":
+                    highest = highest_returns(returns_of[name])
+                    scores_of = protagonist_scores(advantages, returns_of[name], highest)
+            regrets = score_levels(returns_of["protagonist"], returns_of["antagonist"])
+            scores = {"regret": regrets, **scores_of}[args.score_function]
+            buffer.insert(levels, scores, update, highest)
             steps_this_update = batch_size
         global_step += steps_this_update
         student_steps += 2 * steps_this_update
         elapsed += time.time() - update_start
 
-        level_stats = env.level_metrics(levels)
+        level_stats, optimal = env.level_metrics(levels), env.optimal_returns(played)
         row = {"update": update, "env_steps": global_step, "student_steps": student_steps, "sps": round(student_steps / elapsed),
                "replay": int(replay), "protagonist_return": episode_mean(returns_of["protagonist"]),
                "antagonist_return": episode_mean(returns_of["antagonist"]),
                "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
                "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
-               "regret": float(scores.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
+               "regret": float(regrets.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()}, **edit_stats,
-               **true_regret_stats(env.optimal_returns(played), returns_of["protagonist"], scores),
+               **true_regret_stats(optimal, returns_of["protagonist"], scores),
+               **score_true_regret_correlations(optimal, returns_of["protagonist"], scores_of),
                **{f"{name}_{stat}": stats[name][stat] for name in students if name in stats for stat in PPO_STATS},
                **{k: v for k, v in stats.items() if k.startswith("kl_")}}
         last_update = global_step >= args.total_timesteps
@@ -669,7 +632,7 @@ if __name__ == "__main__":
         if update % args.levels_interval == 0 or last_update:
             top = np.argsort(-buffer.scores)[:32]
             save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
-                            titles=[f"regret {s:.3f}" for s in buffer.scores[top]])
+                            titles=[f"{args.score_function} {s:.3f}" for s in buffer.scores[top]])
             log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
         if update % args.checkpoint_interval == 0 or last_update:
             save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {

@@ -1,7 +1,8 @@
 """Robust PLR, PLR and domain randomization (DR), in one file.
 
 Prioritized Level Replay (Jiang et al. 2021) curates a buffer of random levels scored by an estimate of
-regret, the positive value loss (the paper's eq. 2), and replays the highest-scoring, stalest ones.
+regret, the positive value loss (the paper's eq. 2), and replays the highest-scoring, stalest ones
+(`--score-function max_mc` or `learnability` scores them as JaxUED or SFL do; envs/scores.py).
 Robust PLR (PLR-perp, the default) never takes a gradient step on new random levels: it only plays and
 scores them, and trains on replayed levels alone. `--no-robust` gives plain PLR (trains on new levels
 too); `--replay-prob 0` gives DR (every update trains on fresh random levels; no buffer).
@@ -9,6 +10,7 @@ too); `--replay-prob 0` gives DR (every update trains on fresh random levels; no
     python plr.py --env maze                 # Robust PLR, the paper's maze 0-60 settings
     python plr.py --env maze --no-robust     # PLR
     python plr.py --env maze --replay-prob 0 # DR
+    python plr.py --env maze --score-function max_mc  # Robust PLR scored by MaxMC (run name robust_plr_maxmc)
     python plr.py --env carracing            # Robust PLR on CarRacing (held out: the F1 tracks)
     python plr.py --env walker               # Robust PLR on BipedalWalker terrain
 
@@ -34,10 +36,12 @@ from torch.utils.tensorboard import SummaryWriter
 
 import envs
 from envs.evaluation import evaluate_all, to_torch
+from envs.levels import LevelBuffer
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
 from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
                        select_device, student_and_generators, student_class, true_regret_stats)
+from envs.scores import SCORE_FUNCTIONS, highest_returns, level_scores, score_true_regret_correlations
 from envs.video import capture_videos
 
 
@@ -116,6 +120,9 @@ class Args:
     """rho, weight of staleness in the replay distribution (paper: 0.3, walker 0.5)"""
     min_fill_ratio: float = 0.5
     """replay only once the buffer holds at least this share of its size"""
+    score_function: Literal["positive_value_loss", "max_mc", "learnability"] = "positive_value_loss"
+    """a level's score: the positive value loss (the paper's), MaxMC (JaxUED's: the highest return reached on
+    the level minus the value) or learnability (SFL's: p(1 - p), p the share of episodes solved)"""
 
     # Logging, evaluation, checkpoints
     log_interval: int = 10
@@ -149,18 +156,21 @@ PAPER_DEFAULTS = {
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
 
 # The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"replay_prob": float, "robust": bool}
+DEFAULT_DECIDING = {"replay_prob": float, "robust": bool, "score_function": str}
 
 
 def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options` (the command line's defaults). CarRacing's PLR draws
     new levels as sketches (the reference PLR's random teacher), its DR continuous random tracks. A run is
-    named for its variant: robust_plr, plr (--no-robust) or dr (--replay-prob 0)."""
+    named for its variant, robust_plr, plr (--no-robust) or dr (--replay-prob 0), and a score other than
+    the paper's (robust_plr_maxmc, plr_learnability...)."""
     args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "generator" not in options:
         args.generator = "sketch" if env == "carracing" and args.replay_prob > 0 else "random"
     if "exp_name" not in options:
         args.exp_name = "dr" if args.replay_prob == 0 else "robust_plr" if args.robust else "plr"
+        if args.score_function != "positive_value_loss":
+            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
     return args
 
 
@@ -207,108 +217,14 @@ def resolve_args(args: Args) -> Args:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Prioritized level replay: the buffer, its replay distribution and its score (eq. 2).
+# Prioritized level replay: the replay decision (the buffer and its replay distribution: envs/levels.py;
+# the level scores: envs/scores.py).
 # ---------------------------------------------------------------------------------------------------
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
-    """Score per env copy (eq. 2): the mean over the rollout's completed episodes of the mean over each
-    episode's steps of max(GAE advantage, 0). advantages, dones [T, N], dones[t] marking an episode
-    start at step t; final_dones [N] marks an episode that ended at the rollout's last step.
-    An episode cut off by the rollout's end is not scored, as in the reference implementations (dcd,
-    JaxUED): after a failed 250-step episode, a 6-step piece would otherwise weigh as much as it. A copy
-    that completed no episode (one episode spans its whole rollout) is scored on that episode."""
-    steps, n = advantages.shape
-    starts = dones.bool().clone()
-    starts[0] = True
-    ends = torch.cat([starts[1:], final_dones.bool().unsqueeze(0)])  # step t is its episode's last
-    episode = torch.cumsum(starts.t().reshape(-1).long(), 0) - 1  # copy-major episode ids
-    num_episodes = int(episode[-1]) + 1
-    per_episode = lambda values: torch.zeros(num_episodes, device=advantages.device).index_add_(0, episode, values)  # noqa: E731
-    positive = advantages.clamp(min=0).t().reshape(-1)
-    episode_scores = per_episode(positive) / per_episode(torch.ones_like(positive))
-    completed = per_episode(ends.t().reshape(-1).float()) > 0
-    copy_of_episode = torch.zeros(num_episodes, dtype=torch.long, device=advantages.device)
-    copy_of_episode[episode] = torch.arange(n, device=advantages.device).repeat_interleave(steps)
-    per_copy = lambda values: torch.zeros(n, device=advantages.device).index_add_(0, copy_of_episode, values)  # noqa: E731
-    scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]
-    return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
-
-
-def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
-    """P_S: proportional to (1 / rank)^(1 / T), rank 1 the highest score."""
-    ranks = np.empty(len(scores))
-    ranks[np.argsort(-scores, kind="stable")] = np.arange(1, len(scores) + 1)
-    weights = (1.0 / ranks) ** (1.0 / temperature)
-    return weights / weights.sum()
-
-
-def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
-    """P_C: proportional to the updates since each level was last sampled (uniform if all fresh)."""
-    staleness = (update - last_sampled).astype(np.float64)
-    total = staleness.sum()
-    return staleness / total if total > 0 else np.full(len(staleness), 1.0 / len(staleness))
-
-
 def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> bool:
     """The replay decision: replay with probability p once the buffer is full enough."""
     if buffer_size < args.min_fill_ratio * args.level_buffer_size:
         return False
     return bool(rng.random() < args.replay_prob)
-
-
-class LevelBuffer:
-    """The PLR level buffer: levels, their scores and the update each was last sampled at."""
-
-    def __init__(self, capacity: int, temperature: float, staleness_coef: float):
-        self.capacity = capacity
-        self.temperature = temperature
-        self.staleness_coef = staleness_coef
-        self.levels = None
-        self.scores = np.zeros(0)
-        self.last_sampled = np.zeros(0, dtype=np.int64)
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    def replay_weights(self, update: int) -> np.ndarray:
-        """P = (1 - rho) P_S + rho P_C."""
-        return (1 - self.staleness_coef) * rank_weights(self.scores, self.temperature) + self.staleness_coef * staleness_weights(self.last_sampled, update)
-
-    def sample(self, n: int, update: int, rng: np.random.Generator) -> np.ndarray:
-        """Indices of n levels drawn from P (with replacement); they become fresh."""
-        index = rng.choice(len(self), size=n, p=self.replay_weights(update))
-        self.last_sampled[index] = update
-        return index
-
-    def update_scores(self, index: np.ndarray, scores: np.ndarray) -> None:
-        self.scores[index] = scores
-
-    def insert(self, levels, scores: np.ndarray, update: int) -> int:
-        """Offer new levels one by one: each enters if there is room, or replaces the level of lowest
-        replay weight if it scores higher than that level. Returns how many entered."""
-        entered = 0
-        for i in range(len(scores)):
-            if len(self) < self.capacity:
-                self.levels = levels[i] if self.levels is None else type(levels).concat([self.levels, levels[i]])
-                self.scores = np.append(self.scores, scores[i])
-                self.last_sampled = np.append(self.last_sampled, update)
-                entered += 1
-                continue
-            lowest = int(np.argmin(self.replay_weights(update)))
-            if scores[i] > self.scores[lowest]:
-                self.levels[lowest] = levels[i]
-                self.scores[lowest] = scores[i]
-                self.last_sampled[lowest] = update
-                entered += 1
-        return entered
-
-    def state_dict(self) -> dict:
-        levels = None if self.levels is None else self.levels.state_dict()
-        return {"levels": levels, "scores": self.scores, "last_sampled": self.last_sampled}
-
-    def load_state_dict(self, state: dict, level_type) -> None:
-        self.levels = None if state["levels"] is None else level_type.from_state_dict(state["levels"])
-        self.scores = np.asarray(state["scores"])
-        self.last_sampled = np.asarray(state["last_sampled"])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -474,6 +390,7 @@ def metric_names(env) -> list[str]:
     return ["update", "env_steps", "sps", "replay", "trained", "mean_return", "solved_rate", "episodes",
             "buffer_size", "buffer_mean_score", "mean_score", *env.level_metric_names,
             "optimal_return", "solvable", "true_regret", "score_true_regret_correlation",
+            *(f"{name}_true_regret_correlation" for name in SCORE_FUNCTIONS),
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
@@ -557,7 +474,13 @@ if __name__ == "__main__":
         played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
         advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer)
         episode_returns = [r for returns_of_level in returns_per_level for r in returns_of_level]
-        scores = positive_value_loss(advantages, storage.dones, storage.final_dones).cpu().numpy()
+        # All three scores of every level (the diagnostic logs each); --score-function's ranks the buffer.
+        # MaxMC's record of a level: this rollout's highest return, or for a replayed level the buffer's, raised by it.
+        highest = highest_returns(returns_per_level)
+        highest = buffer.raise_highest_returns(replay_index, highest) if replay else highest
+        scores_of = level_scores(advantages, storage.values, storage.dones, storage.final_dones, returns_per_level, highest,
+                                 env.solved_threshold, normalizer)
+        scores = scores_of[args.score_function]
         trained = replay or train_on_new_levels
         stats = {}
         if trained:  # Robust PLR: no gradient step on new levels
@@ -566,19 +489,20 @@ if __name__ == "__main__":
         if replay:
             buffer.update_scores(replay_index, scores)
         elif not domain_randomization:
-            buffer.insert(levels, scores, update)
+            buffer.insert(levels, scores, update, highest)
         global_step += batch_size
         window_steps += batch_size
         elapsed += time.time() - update_start
 
-        level_stats = env.level_metrics(levels)
+        level_stats, optimal = env.level_metrics(levels), env.optimal_returns(played)
         row = {"update": update, "env_steps": global_step, "sps": round(global_step / elapsed), "replay": int(replay),
                "trained": int(trained), "mean_return": np.mean(episode_returns) if episode_returns else float("nan"),
                "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else float("nan"),
                "episodes": len(episode_returns), "buffer_size": len(buffer),
                "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
                **{k: float(np.mean(v)) for k, v in level_stats.items()},
-               **true_regret_stats(env.optimal_returns(played), returns_per_level, scores), **stats}
+               **true_regret_stats(optimal, returns_per_level, scores),
+               **score_true_regret_correlations(optimal, returns_per_level, scores_of), **stats}
         if update % args.eval_interval == 0 or update == num_updates:
             agent.eval()
             validation = evaluate_all(agent, args.env, env.validation_levels, args.eval_episodes, args.seed, device)

@@ -1,11 +1,12 @@
 """On a GPU machine, in one run: the CUDA tests, and the training speed of every script on the GPU and on
 the same machine's CPU. Writes one JSON file and prints a short log.
 
-    python benchmarks/gpu_check.py --out gpu_check.json          # planned for 5-6 minutes on one GPU and 16 cores
+    python benchmarks/gpu_check.py --out gpu_check.json          # about 8 minutes on an H200 with 16 cores
     python benchmarks/gpu_check.py --quick --out /tmp/check.json  # tiny runs only: checks that every run works
 
 It runs, one at a time, the GPU speed runs, the CUDA tests, then the CPU speed runs (the least new if the
-time runs out), and rewrites the JSON after each, so a run cut short keeps what it measured.
+time runs out), and rewrites the JSON after each, so a run cut short keeps what it measured. On an H200
+with 16 cores the GPU runs took 152 s, the tests 144 s, and the CPU runs about 3 minutes.
 
 The JSON holds:
 - `machine`: Python, torch, CUDA and cuDNN versions, the GPU's name and memory, the CPU and its core count;

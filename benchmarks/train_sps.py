@@ -20,6 +20,8 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import envs  # noqa: E402
 import plr  # noqa: E402
+from envs.levels import LevelBuffer  # noqa: E402
+from envs.scores import highest_returns, positive_value_loss  # noqa: E402
 
 envs.keep_freed_memory()  # as plr.py's main does first
 
@@ -36,8 +38,8 @@ rng = np.random.default_rng(0)
 agent = env.Student()
 optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
 storage = plr.Rollout(env, args.num_steps, args.num_envs, "cpu")
-buffer = plr.LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
-buffer.insert(env.random_levels(args.level_buffer_size, rng), rng.random(args.level_buffer_size), 0)
+buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+buffer.insert(env.random_levels(args.level_buffer_size, rng), rng.random(args.level_buffer_size), 0, np.zeros(args.level_buffer_size))
 batch = args.num_envs * args.num_steps
 
 
@@ -54,8 +56,9 @@ def timed(fn):
 def rollout_and_score():
     global advantages, returns
     levels = env.random_levels(args.num_envs, rng)
-    advantages, returns, _ = plr.collect_rollout(agent, env, levels, storage, args, "cpu")
-    buffer.insert(levels, plr.positive_value_loss(advantages, storage.dones).numpy(), 1)
+    advantages, returns, returns_per_level = plr.collect_rollout(agent, env, levels, storage, args, "cpu")
+    scores = positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
+    buffer.insert(levels, scores, 1, highest_returns(returns_per_level))
 
 
 t_rollout = timed(rollout_and_score)

@@ -1,13 +1,15 @@
 """ACCEL's and PAIRED+Evo's own parts on worked examples (accel.py, paired_evo.py): the choice of the
 levels to edit, the regret scores of Algorithm 2 (plain and flexible), the children's way into a full
-level buffer, and the paper's defaults and bad input per script. (The edits themselves, `env.mutate`,
-are tested in test_envs_maze.py; the buffer's replay distribution in test_plr.py.)"""
+level buffer (envs/levels.py, shared by both scripts), and the paper's defaults and bad input per script.
+(The edits themselves, `env.mutate`, are tested in test_envs_maze.py; the buffer's replay distribution in
+test_plr.py.)"""
 
 import numpy as np
 import pytest
 
 import accel
 import paired_evo
+from envs.levels import LevelBuffer
 from envs.maze import MazeEnv
 
 SCRIPTS = [accel, paired_evo]
@@ -102,11 +104,14 @@ def test_flexible_regret_has_no_fixed_roles():
 # ---------------------------------------------------------------------------------------------------
 # Children into a full buffer: each replaces the level of lowest replay weight if it scores higher
 # ---------------------------------------------------------------------------------------------------
-def parents_and_children(script, parent_scores, seed=0):
+NO_RETURNS = np.zeros(4)  # the levels' highest returns (MaxMC's record), which these tests leave aside
+
+
+def parents_and_children(parent_scores, seed=0):
     env = MazeEnv("maze", 4, 0)
     rng = np.random.default_rng(seed)
     buffer_levels = env.random_levels(4, rng)
-    parents = script.select_parents(np.asarray(parent_scores), "easy")
+    parents = accel.select_parents(np.asarray(parent_scores), "easy")  # (paired_evo.py's is the same code)
     children = env.mutate(buffer_levels[parents], rng, 5)
     # the test below tells levels apart by content: all eight must differ
     pool = type(children).concat([buffer_levels, children])
@@ -114,15 +119,14 @@ def parents_and_children(script, parent_scores, seed=0):
     return buffer_levels, children
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
-def test_children_replace_the_lowest_weighted_levels_of_a_full_buffer(script):
-    buffer = script.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
-    levels, children = parents_and_children(script, [0.4, 0.1, 0.3, 0.2])
-    assert buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1) == 4
+def test_children_replace_the_lowest_weighted_levels_of_a_full_buffer():
+    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
+    levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2])
+    assert buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS) == 4
     # Children offered one by one (rank weights only, so the lowest weight is the lowest score):
     # child 0 (0.05) < slot 1 (0.1): out; child 1 (0.25) > slot 1 (0.1): takes slot 1;
     # child 2 (0.15) < now-lowest slot 3 (0.2): out; child 3 (0.5) > slot 3 (0.2): takes slot 3.
-    entered = buffer.insert(children, np.array([0.05, 0.25, 0.15, 0.5]), update=2)
+    entered = buffer.insert(children, np.array([0.05, 0.25, 0.15, 0.5]), update=2, highest_returns=NO_RETURNS)
     assert entered == 2
     assert len(buffer) == 4
     assert np.allclose(buffer.scores, [0.4, 0.25, 0.3, 0.5])
@@ -131,45 +135,42 @@ def test_children_replace_the_lowest_weighted_levels_of_a_full_buffer(script):
     assert buffer.last_sampled.tolist() == [1, 2, 1, 2]
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
-def test_a_child_must_beat_not_equal_the_lowest_level(script):
-    buffer = script.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
-    levels, children = parents_and_children(script, [0.4, 0.1, 0.3, 0.2], seed=1)
-    buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1)
-    assert buffer.insert(children, np.array([0.1, 0.1, 0.0, -0.3]), update=2) == 0
+def test_a_child_must_beat_not_equal_the_lowest_level():
+    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
+    levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2], seed=1)
+    buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS)
+    assert buffer.insert(children, np.array([0.1, 0.1, 0.0, -0.3]), update=2, highest_returns=NO_RETURNS) == 0
     assert np.allclose(buffer.scores, [0.4, 0.1, 0.3, 0.2])
     assert all(same_level(buffer.levels, i, levels, i) for i in range(4))
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
-def test_with_staleness_the_lowest_weight_not_the_lowest_score_is_replaced(script):
+def test_with_staleness_the_lowest_weight_not_the_lowest_score_is_replaced():
     # scores [0.1, 0.2, 0.3, 0.4], T = 1: rank weights (1/4, 1/3, 1/2, 1) / (25/12) = [0.12, 0.16, 0.24, 0.48];
     # rho = 0.5 and slot 0 stale (last sampled at 0, the others at 5; update 5): staleness [1, 0, 0, 0].
     # P = [0.56, 0.08, 0.12, 0.24]: the lowest weight is slot 1 (score 0.2), not slot 0 (score 0.1).
-    buffer = script.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.5)
-    levels, children = parents_and_children(script, [0.1, 0.2, 0.3, 0.4], seed=2)
-    buffer.insert(levels, np.array([0.1, 0.2, 0.3, 0.4]), update=5)
+    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.5)
+    levels, children = parents_and_children([0.1, 0.2, 0.3, 0.4], seed=2)
+    buffer.insert(levels, np.array([0.1, 0.2, 0.3, 0.4]), update=5, highest_returns=NO_RETURNS)
     buffer.last_sampled[:] = [0, 5, 5, 5]
     assert np.allclose(buffer.replay_weights(5), [0.56, 0.08, 0.12, 0.24])
     # child 0 (0.15) beats slot 0's 0.1 but not slot 1's 0.2: out; child 1 (0.25) takes slot 1 (fresh, now
     # scores [0.1, 0.25, 0.3, 0.4], ranks unchanged: slot 1 lowest again); child 2 (0.35) takes slot 1
     # (now the lowest weight is slot 2's, score 0.3); child 3 (0.2) < 0.3: out.
-    entered = buffer.insert(children, np.array([0.15, 0.25, 0.35, 0.2]), update=5)
+    entered = buffer.insert(children, np.array([0.15, 0.25, 0.35, 0.2]), update=5, highest_returns=NO_RETURNS)
     assert entered == 2
     assert np.allclose(buffer.scores, [0.1, 0.35, 0.3, 0.4])
     assert same_level(buffer.levels, 1, children, 2)
     assert all(same_level(buffer.levels, i, levels, i) for i in (0, 2, 3))
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
-def test_children_fill_free_room_first(script):
-    buffer = script.LevelBuffer(capacity=6, temperature=0.3, staleness_coef=0.5)
-    levels, children = parents_and_children(script, [0.4, 0.1, 0.3, 0.2], seed=3)
-    buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1)
+def test_children_fill_free_room_first():
+    buffer = LevelBuffer(capacity=6, temperature=0.3, staleness_coef=0.5)
+    levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2], seed=3)
+    buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS)
     # two free slots: the first two children enter whatever their score (slots 4 and 5); then the buffer
     # is full, its lowest weight is slot 4's (score -0.2, lowest rank, fresh): child 2 (-0.5) stays out,
     # child 3 (0.9) takes slot 4
-    entered = buffer.insert(children, np.array([-0.2, 0.0, -0.5, 0.9]), update=2)
+    entered = buffer.insert(children, np.array([-0.2, 0.0, -0.5, 0.9]), update=2, highest_returns=NO_RETURNS)
     assert entered == 3
     assert len(buffer) == 6
     assert np.allclose(buffer.scores, [0.4, 0.1, 0.3, 0.2, 0.9, 0.0])

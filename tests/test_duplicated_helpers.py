@@ -18,7 +18,7 @@ PAIRED_FAMILY = ["paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py"
 DIFFERENT_BY_DESIGN = {
     "Args": ([], "each script's own options"),
     "resolve_args": ([["paired.py", "paired_hient.py"]], "each script checks its own options"),
-    "paper_args": ([["paired.py", "paired_hient.py", "accel.py"]], "a variant's defaults and run name are its script's"),
+    "paper_args": ([["paired.py", "paired_hient.py"]], "a variant's defaults and run name are its script's"),
     "metric_names": ([["paired.py", "paired_hient.py"]], "each script logs its own columns"),
     "Rollout": ([PLR_FAMILY, PAIRED_FAMILY], "shaped from the env, or from a first observation (three agents)"),
     "minibatch_rows": ([PLR_FAMILY, PAIRED_FAMILY], "PAIRED's serves students and teacher of other sizes"),
@@ -67,8 +67,8 @@ def differing_copies(definitions: dict, name: str, different_by_design: dict) ->
 
 @pytest.mark.parametrize("name", SHARED)
 def test_copies_of_a_helper_are_identical(name):
-    """Catches a slip in one copy of a duplicated helper (say `** T` for `** (1 / T)` in one of the
-    three copies of rank_weights, of which a worked example tests one)."""
+    """Catches a slip in one copy of a duplicated helper (say `<=` for `<` in one of the three copies
+    of decide_replay, of which a worked example tests one)."""
     differing = differing_copies(DEFINITIONS, name, DIFFERENT_BY_DESIGN)
     assert not differing, differing[0]
 
@@ -76,13 +76,13 @@ def test_copies_of_a_helper_are_identical(name):
 def test_a_changed_copy_fails_until_it_is_listed_as_diverging_on_purpose():
     """docs/modifying.md's recipe for a fork: a copy changed in one script is reported, and listing it in
     DIFFERENT_BY_DESIGN (no group: no copy compared; or the groups that must still agree) accepts it."""
-    changed = read("plr.py").replace("weights = (1.0 / ranks) ** (1.0 / temperature)", "weights = (1.0 / ranks) ** (2.0 / temperature)")
+    changed = read("plr.py").replace("return bool(rng.random() < args.replay_prob)", "return bool(rng.random() <= args.replay_prob)")
     definitions = {**DEFINITIONS, "plr.py": top_level_definitions(changed)}
-    (report,) = differing_copies(definitions, "rank_weights", DIFFERENT_BY_DESIGN)
-    assert report.startswith("rank_weights in accel.py, paired_evo.py differs from its copy in plr.py") and "DIFFERENT_BY_DESIGN" in report
-    others = [script for script in SCRIPTS if script != "plr.py" and "rank_weights" in DEFINITIONS[script]]
-    marked = {**DIFFERENT_BY_DESIGN, "rank_weights": ([others], "plr.py sharpens its replay distribution")}
-    assert differing_copies(definitions, "rank_weights", marked) == []
+    (report,) = differing_copies(definitions, "decide_replay", DIFFERENT_BY_DESIGN)
+    assert report.startswith("decide_replay in accel.py, paired_evo.py differs from its copy in plr.py") and "DIFFERENT_BY_DESIGN" in report
+    others = [script for script in SCRIPTS if script != "plr.py" and "decide_replay" in DEFINITIONS[script]]
+    marked = {**DIFFERENT_BY_DESIGN, "decide_replay": ([others], "plr.py decides replay at its edge otherwise")}
+    assert differing_copies(definitions, "decide_replay", marked) == []
 
 
 @pytest.mark.parametrize("name", sorted(DIFFERENT_BY_DESIGN))

@@ -1,5 +1,5 @@
-"""A learning test for ACCEL: accel.py's own parts (rollout, score, PPO update, level buffer, replay
-decision, choice of parents) and the maze editor, in a small ACCEL loop that starts from empty rooms,
+"""A learning test for ACCEL: accel.py's own parts (rollout, PPO update, replay decision, choice of
+parents), its level buffer and score (envs/levels.py, envs/scores.py) and the maze editor, in a small ACCEL loop that starts from empty rooms,
 must teach the student to find the goal in lightly edited empty rooms. Fails if the agent does not learn
 (measured with learning rate 0: no gain)."""
 
@@ -9,8 +9,9 @@ import torch
 
 import accel
 from envs.evaluation import evaluate
-from envs.levels import HeldOutLevel
+from envs.levels import HeldOutLevel, LevelBuffer
 from envs.maze import MazeEnv
+from envs.scores import positive_value_loss
 
 
 @pytest.fixture(autouse=True)
@@ -31,7 +32,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
     rng = np.random.default_rng(0)
     agent = env.Student()
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
-    buffer = accel.LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
     storage = accel.Rollout(env, args.num_steps, args.num_envs, "cpu")
     # empty rooms with 5 random edits: fixed by the evaluation seed, the same before and after
     edited_rooms = HeldOutLevel(generate=lambda n, level_rng: env.mutate(env.empty_levels(n, level_rng), level_rng, 5), max_steps=100)
@@ -51,9 +52,9 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
             levels = env.empty_levels(args.num_envs, rng)
         agent.eval()
         advantages, returns, _ = accel.collect_rollout(agent, env, levels, storage, args, "cpu")
-        scores = accel.positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
+        scores = positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
         if not replay:  # Robust PLR: new levels are only scored
-            buffer.insert(levels, scores, update)
+            buffer.insert(levels, scores, update, np.zeros(args.num_envs))  # (the record of MaxMC, not used here)
             continue
         replays += 1
         agent.train()
@@ -62,7 +63,8 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
         children = env.mutate(levels[accel.select_parents(scores, args.edit_levels)], rng, args.num_edits)
         agent.eval()
         child_advantages, _, _ = accel.collect_rollout(agent, env, children, storage, args, "cpu")
-        children_entered += buffer.insert(children, accel.positive_value_loss(child_advantages, storage.dones, storage.final_dones).numpy(), update)
+        child_scores = positive_value_loss(child_advantages, storage.dones, storage.final_dones).numpy()
+        children_entered += buffer.insert(children, child_scores, update, np.zeros(args.num_envs))
     after = evaluation()
 
     assert replays >= 15 and children_entered > 0  # the ACCEL loop ran: mostly replay, edited levels entered

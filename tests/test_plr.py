@@ -1,58 +1,24 @@
-"""PLR's parts on small worked examples: the score, the replay distribution, the buffer, the decision."""
+"""PLR's parts on small worked examples: the replay distribution, the buffer (envs/levels.py), the decision.
+(The level scores: test_scores.py.)"""
 
 import numpy as np
 import pytest
-import torch
 
 import plr
+from envs.levels import LevelBuffer, rank_weights, staleness_weights
 from envs.maze import MazeEnv
-
-
-def test_positive_value_loss_averages_completed_episode_means():
-    advantages = torch.tensor([[0.5, -1.0], [-0.2, 2.0], [0.3, 1.0], [1.0, 0.0]])
-    dones = torch.tensor([[1.0, 1.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])  # copy 0: episodes {0,1}, {2,3}
-    scores = plr.positive_value_loss(advantages, dones, torch.tensor([1.0, 1.0]))  # both end at the last step
-    # copy 0: mean(0.5, 0) = 0.25 and mean(0.3, 1.0) = 0.65 -> 0.45; copy 1: mean(0, 2, 1, 0) = 0.75
-    assert torch.allclose(scores, torch.tensor([0.45, 0.75]))
-
-
-def test_positive_value_loss_skips_the_episode_cut_off_by_the_rollout_end():
-    """The reference scores completed episodes only. A failed 250-step episode with advantages 0.01,
-    then a 6-step piece cut off by the rollout's end with advantages 0.5: the score is 0.01 (the old
-    rule averaged the two episodes' means: 0.255)."""
-    advantages = torch.cat([torch.full((250, 1), 0.01), torch.full((6, 1), 0.5)])
-    dones = torch.zeros(256, 1)
-    dones[250] = 1.0
-    assert torch.allclose(plr.positive_value_loss(advantages, dones, torch.zeros(1)), torch.tensor([0.01]))
-    # Had the piece ended at the last step, it would count: (0.01 + 0.5) / 2.
-    assert torch.allclose(plr.positive_value_loss(advantages, dones, torch.ones(1)), torch.tensor([0.255]))
-
-
-def test_positive_value_loss_of_a_copy_without_a_completed_episode_is_its_unfinished_one():
-    scores = plr.positive_value_loss(torch.tensor([[1.0], [3.0]]), torch.zeros(2, 1), torch.zeros(1))
-    assert torch.allclose(scores, torch.tensor([2.0]))
-
-
-def test_positive_value_loss_is_the_same_in_plr_and_accel():
-    import accel
-
-    rng = torch.Generator().manual_seed(0)
-    advantages = torch.randn(64, 8, generator=rng)
-    dones = (torch.rand(64, 8, generator=rng) < 0.1).float()
-    final = (torch.rand(8, generator=rng) < 0.5).float()
-    assert torch.equal(plr.positive_value_loss(advantages, dones, final), accel.positive_value_loss(advantages, dones, final))
 
 
 def test_rank_weights_with_temperature():
     scores = np.array([3.0, 1.0, 2.0])  # ranks 1, 3, 2
-    assert np.allclose(plr.rank_weights(scores, 1.0), np.array([1, 1 / 3, 1 / 2]) / (11 / 6))
+    assert np.allclose(rank_weights(scores, 1.0), np.array([1, 1 / 3, 1 / 2]) / (11 / 6))
     squared = np.array([1, 1 / 9, 1 / 4])  # T = 0.5: (1 / rank)^2
-    assert np.allclose(plr.rank_weights(scores, 0.5), squared / squared.sum())
+    assert np.allclose(rank_weights(scores, 0.5), squared / squared.sum())
 
 
 def test_staleness_weights():
-    assert np.allclose(plr.staleness_weights(np.array([0, 5, 10]), 10), [2 / 3, 1 / 3, 0])
-    assert np.allclose(plr.staleness_weights(np.array([4, 4]), 4), [0.5, 0.5])
+    assert np.allclose(staleness_weights(np.array([0, 5, 10]), 10), [2 / 3, 1 / 3, 0])
+    assert np.allclose(staleness_weights(np.array([4, 4]), 4), [0.5, 0.5])
 
 
 def make_levels(n, seed=0):
@@ -60,31 +26,31 @@ def make_levels(n, seed=0):
 
 
 def test_replay_weights_mix_rank_and_staleness():
-    buffer = plr.LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.3)
-    buffer.insert(make_levels(3), np.array([3.0, 1.0, 2.0]), update=0)
+    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.3)
+    buffer.insert(make_levels(3), np.array([3.0, 1.0, 2.0]), update=0, highest_returns=np.zeros(3))
     buffer.last_sampled[:] = [0, 5, 10]
     expected = 0.7 * np.array([6, 2, 3]) / 11 + 0.3 * np.array([2 / 3, 1 / 3, 0])
     assert np.allclose(buffer.replay_weights(10), expected)
 
 
 def test_insertion_and_replacement_in_a_full_buffer():
-    buffer = plr.LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.0)
+    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.0)
     levels = make_levels(5)
-    assert buffer.insert(levels[np.arange(3)], np.array([0.5, 0.1, 0.3]), update=1) == 3
+    assert buffer.insert(levels[np.arange(3)], np.array([0.5, 0.1, 0.3]), update=1, highest_returns=np.zeros(3)) == 3
     assert len(buffer) == 3
     # Full: a level scoring below the lowest-weighted one (score 0.1, slot 1) stays out ...
-    assert buffer.insert(levels[np.array([3])], np.array([0.05]), update=2) == 0
+    assert buffer.insert(levels[np.array([3])], np.array([0.05]), update=2, highest_returns=np.zeros(1)) == 0
     assert np.allclose(buffer.scores, [0.5, 0.1, 0.3])
     # ... one scoring above it takes its slot.
-    assert buffer.insert(levels[np.array([4])], np.array([0.2]), update=2) == 1
+    assert buffer.insert(levels[np.array([4])], np.array([0.2]), update=2, highest_returns=np.zeros(1)) == 1
     assert np.allclose(buffer.scores, [0.5, 0.2, 0.3])
     assert np.array_equal(buffer.levels.walls[1], levels.walls[4])
     assert buffer.last_sampled[1] == 2
 
 
 def test_sampling_follows_weights_and_refreshes_staleness():
-    buffer = plr.LevelBuffer(capacity=3, temperature=0.1, staleness_coef=0.0)
-    buffer.insert(make_levels(3), np.array([0.9, 0.1, 0.2]), update=0)
+    buffer = LevelBuffer(capacity=3, temperature=0.1, staleness_coef=0.0)
+    buffer.insert(make_levels(3), np.array([0.9, 0.1, 0.2]), update=0, highest_returns=np.zeros(3))
     index = buffer.sample(200, update=7, rng=np.random.default_rng(0))
     assert np.mean(index == 0) > 0.95  # (1/rank)^10: the top level dominates
     assert buffer.last_sampled[0] == 7
@@ -101,12 +67,13 @@ def test_replay_decision():
 
 
 def test_buffer_state_round_trip():
-    buffer = plr.LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
-    buffer.insert(make_levels(3), np.array([0.1, 0.2, 0.3]), update=3)
-    restored = plr.LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
+    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
+    buffer.insert(make_levels(3), np.array([0.1, 0.2, 0.3]), update=3, highest_returns=np.array([0.0, 0.5, 0.9]))
+    restored = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
     restored.load_state_dict(buffer.state_dict(), type(buffer.levels))
     assert np.array_equal(restored.scores, buffer.scores)
     assert np.array_equal(restored.levels.walls, buffer.levels.walls)
+    assert np.array_equal(restored.highest_returns, [0.0, 0.5, 0.9])  # MaxMC's record survives a resume
 
 
 @pytest.mark.parametrize("bad", [dict(num_envs=30, num_minibatches=4), dict(replay_prob=1.5), dict(temperature=0.0)])

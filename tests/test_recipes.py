@@ -5,9 +5,11 @@ and tests/test_toy_env.py.)"""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 
@@ -39,8 +41,9 @@ def test_every_file_line_link_of_modifying_md_points_at_its_name():
         text = f.read()
     assert len(LINK.findall(text)) >= 20
     assert not stale_links(text), "docs/modifying.md: " + "; ".join(stale_links(text))
-    moved = text.replace("plr.py:155](../plr.py#L155)", "plr.py:156](../plr.py#L156)")
-    assert "`paper_args`" in text and stale_links(moved) == ["plr.py:156 is not `paper_args` (defined at line 155)"]
+    name, path, line, _, _ = LINK.findall(text)[0]  # the page's first link moved one line down: reported
+    moved = text.replace(f"{path}:{line}](../{path}#L{line})", f"{path}:{int(line) + 1}](../{path}#L{int(line) + 1})", 1)
+    assert stale_links(moved)[0] == f"{path}:{int(line) + 1} is not `{name}` (defined at line {line})"
 
 
 def test_the_readme_links_the_page():
@@ -48,16 +51,16 @@ def test_the_readme_links_the_page():
         assert "(docs/modifying.md)" in f.read()
 
 
-# The recipes, as a user of a copy of plr.py would write them.
+# The recipes, as a user of a copy of plr.py and envs/ would write them.
 FLAG = '''    score_power: float = 1.0
-    """the level score is the positive value loss to this power"""
+    """the level score, to this power, ranks the buffer"""
 '''
 CHECK = '''    if args.score_power <= 0:
         fail("--score-power must be positive")
 '''
-SCORE = '''def powered_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor, power: float) -> torch.Tensor:
-    """The positive value loss to a power: one score per env copy."""
-    return positive_value_loss(advantages, dones, final_dones) ** power
+SCORE = '''def squared_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+    """The positive value loss squared: one score per env copy."""
+    return positive_value_loss(advantages, dones, final_dones) ** 2
 
 
 '''
@@ -70,30 +73,48 @@ def inserted(source: str, anchor: str, text: str, before: bool = False) -> str:
     return source.replace(anchor, text + anchor if before else anchor + text)
 
 
+def replaced(source: str, old: str, new: str) -> str:
+    assert source.count(old) == 1, old
+    return source.replace(old, new)
+
+
 def run(argv, cwd) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *argv], cwd=cwd, env=ENV, capture_output=True, text=True, timeout=600)
+    env = {key: value for key, value in ENV.items() if key != "PYTHONPATH"}  # the copy of envs/, not the repository's
+    return subprocess.run([sys.executable, *argv], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 
-def test_a_copy_of_plr_with_a_new_flag_and_level_score_checks_trains_and_resumes(tmp_path):
+def test_a_copy_with_a_new_flag_and_level_score_checks_trains_and_resumes(tmp_path):
+    shutil.copytree(os.path.join(ROOT, "envs"), tmp_path / "envs", ignore=shutil.ignore_patterns("__pycache__"))
+    scores = (tmp_path / "envs" / "scores.py").read_text()
+    scores = inserted(scores, "def level_scores(", SCORE, before=True)  # 1. the score
+    scores = inserted(scores, '"learnability": "learnability"', ', "squared_value_loss": "svl"')  # 2. its name
+    scores = inserted(scores, '            "learnability": learnability(returns_per_level, solved_threshold)',
+                      ',\n            "squared_value_loss": squared_value_loss(advantages, dones, final_dones).cpu().numpy()')
+    (tmp_path / "envs" / "scores.py").write_text(scores)
     with open(os.path.join(ROOT, "plr.py")) as f:
         source = f.read()
-    source = inserted(source, "    min_fill_ratio: float = 0.5\n", FLAG, before=True)  # 1. a field of Args
-    source = inserted(source, "    return args\n\n\n# -----", CHECK, before=True)  # 3. checked at the end of resolve_args
-    source = inserted(source, "def rank_weights(", SCORE, before=True)  # a new score beside the paper's
-    source = source.replace("scores = positive_value_loss(advantages, storage.dones, storage.final_dones)",
-                            "scores = powered_value_loss(advantages, storage.dones, storage.final_dones, args.score_power)")
-    script = tmp_path / "my_plr.py"
-    script.write_text(source)
+    source = replaced(source, 'Literal["positive_value_loss", "max_mc", "learnability"]',  # 3. offered by --score-function
+                      'Literal["positive_value_loss", "max_mc", "learnability", "squared_value_loss"]')
+    source = inserted(source, "    min_fill_ratio: float = 0.5\n", FLAG, before=True)  # the flag: a field of Args,
+    source = inserted(source, "    return args\n\n\n# -----", CHECK, before=True)  # checked at the end of resolve_args,
+    source = replaced(source, "scores = scores_of[args.score_function]\n", "scores = scores_of[args.score_function] ** args.score_power\n")
+    (tmp_path / "my_plr.py").write_text(source)
 
-    shown = run([str(script), "--help"], tmp_path)
+    shown = run(["my_plr.py", "--help"], tmp_path)
     help_text = re.sub(r"[│\s]+", " ", shown.stdout)  # tyro's box and line breaks removed
-    assert shown.returncode == 0 and "--score-power FLOAT the level score is the positive value loss to this power" in help_text
-    bad = run([str(script), *TINY, "--score-power", "0"], tmp_path)
+    assert shown.returncode == 0 and "--score-power FLOAT the level score, to this power, ranks the buffer" in help_text
+    assert "squared_value_loss}" in help_text
+    bad = run(["my_plr.py", *TINY, "--score-power", "0"], tmp_path)
     assert bad.returncode == 2 and bad.stderr == "error: --score-power must be positive\n" and not (tmp_path / "runs").exists()
-    trained = run([str(script), *TINY, "--score-power", "2"], tmp_path)
+    trained = run(["my_plr.py", *TINY, "--score-function", "squared_value_loss", "--score-power", "0.5"], tmp_path)
     assert trained.returncode == 0, trained.stderr[-3000:]
     (name,) = os.listdir(tmp_path / "runs")
+    assert name.startswith("maze__robust_plr_svl__")
     run_dir = tmp_path / "runs" / name
-    assert json.loads((run_dir / "args.json").read_text())["score_power"] == 2.0
-    resumed = run([str(script), "--resume", str(run_dir)], tmp_path)
+    saved = json.loads((run_dir / "args.json").read_text())
+    assert saved["score_power"] == 0.5 and saved["score_function"] == "squared_value_loss"
+    with open(run_dir / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and all(float(row["mean_score"]) >= 0 for row in rows)
+    resumed = run(["my_plr.py", "--resume", str(run_dir)], tmp_path)
     assert resumed.returncode == 0 and "resuming" in resumed.stdout, resumed.stderr[-3000:]
