@@ -11,6 +11,7 @@ every replayed level once).
     python accel.py --env maze --generator empty    # ACCEL from empty rooms
     python accel.py --env walker                    # ACCEL on BipedalWalker terrain, the easy generator
     python accel.py --env maze --score-function learnability  # levels scored as SFL does (run name accel_learnability)
+    OMP_NUM_THREADS=1 python accel.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ final step, and the teacher trains by PPO. The paper's defaults (no entropy bonu
 its problem P1: the teacher's entropy collapses and its mazes become sparse (Fig. 5b).
 
     python paired.py --env maze
+    OMP_NUM_THREADS=1 python paired.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 """
 
 from __future__ import annotations

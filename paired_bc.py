@@ -12,6 +12,7 @@ blocks 0.1, 25, 0.005, 0.05). Everything else is PAIRED (Algorithm 1).
     python paired_bc.py --env maze                  # PAIRED+UniBC+HiEnt
     python paired_bc.py --env maze --bidirectional  # PAIRED+BiBC+HiEnt
     python paired_bc.py --env maze --student-ent-coef 0 --teacher-ent-coef 0  # PAIRED+UniBC
+    OMP_NUM_THREADS=1 python paired_bc.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ Appendix C ("Combining it all") is one command:
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10                  # PAIRED+Evo+UniBC
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --student-ent-coef 0.005  # +UniBC+HiEnt
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --bidirectional  # PAIRED+Evo+BiBC
+    OMP_NUM_THREADS=1 python paired_evo.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 
 `--score-function` ranks the buffer by the protagonist's positive value loss, MaxMC or learnability
 (envs/scores.py) in place of the regret.

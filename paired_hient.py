@@ -7,6 +7,7 @@ exploring the design space and the students exploring their actions. Everything 
 HiEnt: maze 0-60 student 0.005, teacher 0.05; maze 25 blocks 0.005, 0.01).
 
     python paired_hient.py --env maze
+    OMP_NUM_THREADS=1 python paired_hient.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 """
 
 from __future__ import annotations

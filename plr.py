@@ -13,6 +13,7 @@ too); `--replay-prob 0` gives DR (every update trains on fresh random levels; no
     python plr.py --env maze --score-function max_mc  # Robust PLR scored by MaxMC (run name robust_plr_maxmc)
     python plr.py --env carracing            # Robust PLR on CarRacing (held out: the F1 tracks)
     python plr.py --env walker               # Robust PLR on BipedalWalker terrain
+    OMP_NUM_THREADS=1 python plr.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 
 Recurrent students (the maze's LSTM) train on whole rollouts as sequences, minibatches split over env
 copies; feed-forward students (CarRacing, walker) train on minibatches of single steps.

@@ -67,7 +67,8 @@ def rate(code: str, env: str, script: str, options: list[str], updates: int) -> 
         result = subprocess.run(command, cwd=run_in, capture_output=True, text=True,
                                 env={**USER_ENVIRONMENT, "CLEANUED_F1_TRACKS": "none"})
         if result.returncode != 0:
-            sys.exit(f"{code}: {script} --env {env} failed: {result.stderr.strip().splitlines()[-1]}")
+            last_line = (result.stderr.strip().splitlines() or [f"exit status {result.returncode}"])[-1]
+            sys.exit(f"{code}: {script} --env {env} failed: {last_line}")
         with open(glob.glob(os.path.join(run_in, "runs", "*", "metrics.csv"))[0], newline="") as f:
             rows = list(csv.DictReader(f))
     step_column = "student_steps" if "student_steps" in rows[0] else "env_steps"
