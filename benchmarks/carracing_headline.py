@@ -23,23 +23,15 @@ import glob
 import os
 import subprocess
 import sys
-import tarfile
 import tempfile
 
 import numpy as np
 
+from against import copy_of_commit  # benchmarks/against.py, beside this script
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BATCH = 16 * 125  # protagonist steps per update at the paper's CarRacing settings
 QUIET = ["--eval-interval", "100000", "--eval-episodes", "1", "--levels-interval", "100000", "--checkpoint-interval", "100000"]
-
-
-def baseline_copy(commit: str, directory: str) -> str:
-    """The files of `commit` of this checkout's repository, unpacked into `directory`."""
-    archive = os.path.join(directory, "baseline.tar")
-    subprocess.run(["git", "-C", ROOT, "archive", "-o", archive, commit], check=True)
-    with tarfile.open(archive) as tar:
-        tar.extractall(os.path.join(directory, "baseline"), filter="data")
-    return os.path.join(directory, "baseline")
 
 
 def protagonist_rate(code: str, extra: list[str], updates: int) -> tuple[float, float, float]:
@@ -75,7 +67,7 @@ threads = os.environ.get("OMP_NUM_THREADS", f"{torch.get_num_threads()} (torch's
 print(f"paired_bc.py --bidirectional --env carracing, {options.updates} updates per run, threads: {threads}")
 rates: dict[str, list[float]] = {"baseline": [], "current": []}
 with tempfile.TemporaryDirectory() as scratch:
-    sides = {"baseline": (baseline_copy(options.baseline, scratch), []), "current": (ROOT, ["--f1-tracks", "none"])}
+    sides = {"baseline": (copy_of_commit(options.baseline, scratch), []), "current": (ROOT, ["--f1-tracks", "none"])}
     for round_ in range(options.rounds):
         for side, (code, extra) in sides.items():
             rate, rollouts, ppo = protagonist_rate(code, extra, options.updates)
