@@ -9,7 +9,8 @@ DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writ
 summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
 training.png (c), levels.png (d) and true_regret.png (e: each algorithm's own score, its estimate of
 regret, beside the true regret of the training levels and the rank correlation of the two, for the runs
-that logged it).
+that logged it) and scores.png (f: the three level scores' rank correlations with the true regret, and
+the held-out solved rate of the runs that logged them).
 """
 
 from __future__ import annotations
@@ -31,7 +32,9 @@ from envs.evaluation import aggregate  # noqa: E402
 # The experiments in the order of the paper's tables, with their names there (the maze's UniBC, CarRacing's
 # BiBC). An experiment keeps its colour in every env's figures.
 EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired": "PAIRED", "paired_hient": "PAIRED+HiEnt",
-               "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo", "paired_bibc_hient": "PAIRED+BiBC+HiEnt"}
+               "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo", "paired_bibc_hient": "PAIRED+BiBC+HiEnt",
+               "robust_plr_maxmc": "Robust PLR (MaxMC)", "robust_plr_learnability": "Robust PLR (learnability)",
+               "paired_evo_unibc": "PAIRED+Evo+UniBC"}
 MAZES = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
          "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
 # The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates):
@@ -131,8 +134,10 @@ def table(summary: dict) -> str:
 
 
 def colours(names) -> dict:
-    palette = plt.get_cmap("tab10")
-    return {name: palette(i) for i, name in enumerate([*EXPERIMENTS, *sorted(set(names) - set(EXPERIMENTS))]) if name in names}
+    """An experiment's colour, the same in every figure: tab10's ten, then Dark2's."""
+    palette = [*plt.get_cmap("tab10").colors, *plt.get_cmap("Dark2").colors]
+    order = [*EXPERIMENTS, *sorted(set(names) - set(EXPERIMENTS))]
+    return {name: palette[i % len(palette)] for i, name in enumerate(order) if name in names}
 
 
 def plot_solved_per_maze(summary: dict, path: str) -> None:
@@ -256,6 +261,49 @@ def plot_true_regret(runs: dict, path: str) -> None:
         plot_training(logged, path, REGRET_CURVES, "Estimated and true regret (trailing mean over {smoothing} updates; band: ± s.e. over seeds)")
 
 
+# The level scores a curator can sample by (plr.py's --score-function), each one's diagnostic column.
+SCORES = {"positive_value_loss": "positive value loss", "max_mc": "MaxMC", "learnability": "learnability"}
+
+
+def plot_scores(runs: dict, summary: dict, path: str) -> list[str]:
+    """(f) Which level score tracks the true regret: per score, its rank correlation with the true regret
+    of the same training levels over training (every score is computed on every update of the runs that
+    logged the diagnostic, whichever score drove the sampling), and those experiments' held-out solved
+    rate. Returns the experiments drawn."""
+    logged = {name: seeds for name, seeds in runs.items()
+              if all(seed["metrics"] and "max_mc_true_regret_correlation" in seed["metrics"][0] for seed in seeds.values())}
+    if not logged:
+        return []
+    colour = colours(logged)
+    fig, axes = plt.subplots(1, len(SCORES) + 1, figsize=(4.2 * (len(SCORES) + 1), 3.8))
+    for ax, (score, label) in zip(axes, SCORES.items()):
+        for name, seeds in logged.items():
+            curves = [curve(seed["metrics"], (f"{score}_true_regret_correlation",), smooth=True) for seed in seeds.values()]
+            end = min(c[0][-1] for c in curves)
+            grid = np.linspace(0, end, 200)
+            values = np.array([np.interp(grid, steps, v) for steps, v in curves])
+            mean = values.mean(axis=0)
+            se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
+            ax.plot(grid / 1e6, mean, color=colour[name], label=EXPERIMENTS.get(name, name))
+            ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour[name], alpha=0.2)
+        ax.axhline(0, color="grey", linewidth=0.8)
+        ax.set_ylim(-1, 1)
+        ax.set_title(f"{label}: rank correlation\nwith the true regret", fontsize=10)
+        ax.set_xlabel("protagonist env steps (M)")
+    axes[0].legend(fontsize=7)
+    names = list(logged)
+    axes[-1].bar(range(len(names)), [summary[n]["mean_solved_rate"] for n in names], yerr=[summary[n]["se"] for n in names],
+                 capsize=3, color=[colour[n] for n in names])
+    axes[-1].set_xticks(range(len(names)), [EXPERIMENTS.get(n, n) for n in names], rotation=30, ha="right", fontsize=8)
+    axes[-1].set_ylim(0, 1)
+    axes[-1].set_title("held-out solved rate (12 mazes)", fontsize=10)
+    fig.suptitle(f"Level scores against the true regret (trailing mean over {SMOOTHING} updates; band and bars: ± s.e. over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return names
+
+
 def plot_levels(runs: dict, path: str) -> None:
     """(d) Each experiment's curriculum at the end (its lowest seed's last level image)."""
     shown = [(name, seeds[min(s for s in seeds if seeds[s]["levels"])]["levels"]) for name, seeds in runs.items()
@@ -308,6 +356,7 @@ def main(argv=None) -> None:
     plot_training(runs, os.path.join(args.directory, "training.png"))
     plot_levels(runs, os.path.join(args.directory, "levels.png"))
     plot_true_regret(runs, os.path.join(args.directory, "true_regret.png"))
+    plot_scores(runs, summary, os.path.join(args.directory, "scores.png"))
     for name, s in summary.items():
         print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed{'s' * (len(s['seeds']) > 1)}  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
               f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")

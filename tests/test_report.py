@@ -11,7 +11,8 @@ import pytest
 from results import report
 
 
-def fake_run(folder, solved: dict, teacher: bool) -> None:
+def fake_run(folder, solved: dict, teacher: bool, diagnostic: bool = False) -> None:
+    """A finished run; `diagnostic`: it logged every level score's rank correlation with the true regret."""
     os.makedirs(folder)
     json.dump({"env": "maze"}, open(os.path.join(folder, "args.json"), "w"))
     results = {maze: {"solved_rate": solved.get(maze, solved["*"]), "mean_return": 0.0} for maze in report.MAZES}
@@ -19,7 +20,8 @@ def fake_run(folder, solved: dict, teacher: bool) -> None:
     json.dump(results, open(os.path.join(folder, "eval.json"), "w"))
     return_column = "protagonist_return" if teacher else "mean_return"
     columns = ["update", "env_steps", return_column, "val_solved_rate", "walls", "path_length",
-               *(["teacher_entropy"] if teacher else ["mean_score", "true_regret", "score_true_regret_correlation", "solvable"])]
+               *(["teacher_entropy"] if teacher else ["mean_score", "true_regret", "score_true_regret_correlation", "solvable"]),
+               *([f"{score}_true_regret_correlation" for score in report.SCORES] if diagnostic else [])]
     with open(os.path.join(folder, "metrics.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)
         writer.writeheader()
@@ -27,7 +29,8 @@ def fake_run(folder, solved: dict, teacher: bool) -> None:
             writer.writerow({"update": update, "env_steps": 8192 * update, return_column: update / 40, "walls": 20, "path_length": 12,
                              "val_solved_rate": 0.5 if update % 10 == 0 else "",
                              **({"teacher_entropy": 5.0} if teacher else {"mean_score": 0.07, "true_regret": 0.5, "score_true_regret_correlation": -0.2,
-                                                                   "solvable": 1.0})})
+                                                                   "solvable": 1.0}),
+                             **({f"{score}_true_regret_correlation": 0.3 * i - 0.4 for i, score in enumerate(report.SCORES)} if diagnostic else {})})
 
 
 def test_report_on_hand_worked_runs(tmp_path):
@@ -58,6 +61,22 @@ def test_report_on_hand_worked_runs(tmp_path):
     assert "| **mean** | 0.61 ± 0.03 | 0.21 ± 0.07 |" in table  # the paper's ACCEL and PAIRED
     for name in ("solved_per_maze.png", "aggregates.png", "training.png", "true_regret.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
+    assert not (tmp_path / "scores.png").exists()  # (f) is drawn only from runs that logged every score
+
+
+def test_scores_figure_from_the_runs_with_the_diagnostic(tmp_path):
+    """(f) shows the experiments whose every seed logged the three scores' correlations, and only those:
+    Robust PLR with MaxMC (two seeds) and with learnability, not PAIRED. Their table columns come after
+    the paper's experiments, named by the score."""
+    fake_run(tmp_path / "robust_plr_maxmc" / "1", {"*": 0.2}, teacher=False, diagnostic=True)
+    fake_run(tmp_path / "robust_plr_maxmc" / "2", {"*": 0.4}, teacher=False, diagnostic=True)
+    fake_run(tmp_path / "robust_plr_learnability" / "1", {"*": 0.1}, teacher=False, diagnostic=True)
+    fake_run(tmp_path / "paired" / "1", {"*": 0.0}, teacher=True)
+    report.main([str(tmp_path)])
+    runs = report.load_runs(str(tmp_path))
+    assert report.plot_scores(runs, report.summarize(runs), str(tmp_path / "f.png")) == ["robust_plr_maxmc", "robust_plr_learnability"]
+    assert (tmp_path / "scores.png").stat().st_size > 10_000
+    assert "| maze | PAIRED | Robust PLR (MaxMC) | Robust PLR (learnability) |" in (tmp_path / "table.md").read_text()
 
 
 def test_a_single_seed_shows_its_values_without_spread(tmp_path):
