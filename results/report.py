@@ -208,6 +208,17 @@ def curve(rows: list[dict], columns: tuple, smooth: bool):
     return steps, values
 
 
+def plot_band(ax, curves: list, colour, label: str) -> None:
+    """The seeds' curves [(steps, values)] as their mean and a band of ± one standard error, on a grid up
+    to the shortest run's last step."""
+    grid = np.linspace(0, min(steps[-1] for steps, _ in curves), 200)
+    values = np.array([np.interp(grid, steps, v) for steps, v in curves])
+    mean = values.mean(axis=0)
+    se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
+    ax.plot(grid / 1e6, mean, color=colour, label=label)
+    ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour, alpha=0.2)
+
+
 def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailing mean over {smoothing} updates except "
                   "validation; band: ± s.e. over seeds)", rows: int = 1) -> None:
     """(c) Training curves, a band of ± one standard error over seeds around their mean, one quantity per
@@ -222,15 +233,8 @@ def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailin
     for ax, (title_of_panel, columns, limits) in zip(axes, panels):
         for name, seeds in runs.items():
             curves = [c for c in (curve(s["metrics"], columns, smooth=not columns[0].startswith("val_")) for s in seeds.values()) if c]
-            if not curves:
-                continue
-            end = min(c[0][-1] for c in curves)
-            grid = np.linspace(0, end, 200)
-            values = np.array([np.interp(grid, steps, v) for steps, v in curves])
-            mean = values.mean(axis=0)
-            se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
-            ax.plot(grid / 1e6, mean, color=colour[name], label=EXPERIMENTS.get(name, name))
-            ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour[name], alpha=0.2)
+            if curves:
+                plot_band(ax, curves, colour[name], EXPERIMENTS.get(name, name))
         ax.set_title(title_of_panel, fontsize=10)
         ax.set_xlabel("protagonist env steps (M)")
         if limits:
@@ -279,13 +283,7 @@ def plot_scores(runs: dict, summary: dict, path: str) -> list[str]:
     for ax, (score, label) in zip(axes, SCORES.items()):
         for name, seeds in logged.items():
             curves = [curve(seed["metrics"], (f"{score}_true_regret_correlation",), smooth=True) for seed in seeds.values()]
-            end = min(c[0][-1] for c in curves)
-            grid = np.linspace(0, end, 200)
-            values = np.array([np.interp(grid, steps, v) for steps, v in curves])
-            mean = values.mean(axis=0)
-            se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
-            ax.plot(grid / 1e6, mean, color=colour[name], label=EXPERIMENTS.get(name, name))
-            ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour[name], alpha=0.2)
+            plot_band(ax, curves, colour[name], EXPERIMENTS.get(name, name))
         ax.axhline(0, color="grey", linewidth=0.8)
         ax.set_ylim(-1, 1)
         ax.set_title(f"{label}: rank correlation\nwith the true regret", fontsize=10)
