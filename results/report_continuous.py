@@ -249,7 +249,10 @@ def plot_returns_per_level(summary: dict, reproduction: Reproduction, path: str)
     ax.set_xticks(np.arange(len(groups) + 1), [*groups, "mean"], rotation=30, ha="right")
     ax.set_ylabel("return")
     ax.set_title(f"Zero-shot return per {reproduction.level} (mean ± s.e. over seeds; black: the {reproduction.source}'s)")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    legend = ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    for handle in legend.legend_handles:  # a wide bar's mark would overflow the legend's handle box
+        if getattr(handle, "get_marker", lambda: None)() == "_":
+            handle.set_markersize(10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
