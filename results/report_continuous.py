@@ -25,6 +25,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.lines import Line2D
 
 from envs.evaluation import aggregate, bootstrap_interval
 from results.report import EXPERIMENTS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
@@ -251,7 +252,7 @@ def plot_returns_per_level(summary: dict, reproduction: Reproduction, path: str)
     ax.set_title(f"Zero-shot return per {reproduction.level} (mean ± s.e. over seeds; black: the {reproduction.source}'s)")
     legend = ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     for handle in legend.legend_handles:  # a wide bar's mark would overflow the legend's handle box
-        if getattr(handle, "get_marker", lambda: None)() == "_":
+        if isinstance(handle, Line2D):
             handle.set_markersize(10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
