@@ -1,4 +1,5 @@
-"""The maze UPOMDP (SPEC section 1) checked against hand-worked cases.
+"""The maze UPOMDP (the paper's MiniGrid maze, Experimental Details appendix) checked against
+hand-worked cases.
 
 Levels are drawn as ASCII: '#' wall, '.' empty, 'G' goal, 'A' agent start. Coordinates are (x, y), x the
 column, y the row; directions 0 east, 1 south, 2 west, 3 north.

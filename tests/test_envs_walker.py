@@ -1,4 +1,5 @@
-"""The walker UPOMDP (SPEC section 3) checked against hand-worked cases and gymnasium's own walker.
+"""The walker UPOMDP (ACCEL's eight-parameter BipedalWalker, as the paper uses it) checked against
+hand-worked cases and gymnasium's own walker.
 
 Levels are written as parameter vectors in PARAM_NAMES order: roughness, pit gap (low, high), stump
 height (low, high), stair height (low, high), stair steps.

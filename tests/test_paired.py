@@ -371,7 +371,7 @@ def test_bad_input_is_one_error_line_status_2_nothing_written(bad_input_runs, ca
 def test_paper_defaults_per_script_and_env(module, env, expected):
     args = module.resolve_args(module.paper_args(env=env))
     assert {k: getattr(args, k) for k in expected} == expected
-    # The shared PPO settings (SPEC 4) are the same for every script and env.
+    # The two mazes share the paper's PPO settings (its hyperparameter table) in every script.
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda, args.update_epochs,
             args.num_minibatches, args.value_loss) == (32, 256, 1e-4, 0.995, 0.95, 5, 1, "clipped")
     assert not getattr(args, "bidirectional", False)
