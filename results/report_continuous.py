@@ -25,7 +25,6 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.lines import Line2D
 
 from envs.evaluation import aggregate, bootstrap_interval
 from results.report import EXPERIMENTS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
@@ -242,18 +241,16 @@ def plot_returns_per_level(summary: dict, reproduction: Reproduction, path: str)
                label=f"{EXPERIMENTS.get(name, name)} ({seeds} seed{'s' * (seeds > 1)})")
         published = [levels[g].get("published") for g in groups] + [summary[name].get("published", {}).get("mean_return")]
         marks = [(xi, entry["mean"]) for xi, entry in zip(x, published) if entry]
-        if marks:
-            ax.plot(*zip(*marks), linestyle="none", marker="_", markersize=max(4.0, 60 * width), markeredgewidth=2,
-                    color="black", label=None if marked else f"the {reproduction.source}'s return")
+        if marks:  # a line as wide as its bar, in data units so that it stays on the bar at any figure size
+            xs, ys = np.array(marks).T
+            ax.hlines(ys, xs - width / 2, xs + width / 2, linewidth=2, color="black",
+                      label=None if marked else f"the {reproduction.source}'s return")
             marked = True
     ax.axhline(0, color="grey", linewidth=0.5)
     ax.set_xticks(np.arange(len(groups) + 1), [*groups, "mean"], rotation=30, ha="right")
     ax.set_ylabel("return")
     ax.set_title(f"Zero-shot return per {reproduction.level} (mean ± s.e. over seeds; black: the {reproduction.source}'s)")
-    legend = ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    for handle in legend.legend_handles:  # a wide bar's mark would overflow the legend's handle box
-        if isinstance(handle, Line2D):
-            handle.set_markersize(10)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
