@@ -303,15 +303,17 @@ def plot_scores(runs: dict, summary: dict, path: str) -> list[str]:
 
 
 def plot_levels(runs: dict, path: str) -> None:
-    """(d) Each experiment's curriculum at the end (its lowest seed's last level image)."""
+    """(d) Each experiment's curriculum at the end (its lowest seed's last level image, whole)."""
     shown = [(name, seeds[min(s for s in seeds if seeds[s]["levels"])]["levels"]) for name, seeds in runs.items()
              if any(s["levels"] for s in seeds.values())]
     if not shown:
         return
-    fig, axes = plt.subplots(len(shown), 1, figsize=(10, 3.3 * len(shown)), squeeze=False)
-    for ax, (name, image) in zip(axes[:, 0], shown):
-        picture = plt.imread(image)
-        ax.imshow(picture[: picture.shape[0] // 2])  # the first two rows of levels
+    pictures = [plt.imread(image) for _, image in shown]
+    heights = [10 * picture.shape[0] / picture.shape[1] + 0.4 for picture in pictures]  # the whole grid, a title above
+    fig, axes = plt.subplots(len(shown), 1, figsize=(10, sum(heights)), squeeze=False,
+                             gridspec_kw={"height_ratios": heights})
+    for ax, (name, _), picture in zip(axes[:, 0], shown, pictures):
+        ax.imshow(picture)
         ax.set_title(f"{EXPERIMENTS.get(name, name)}: levels at the end of training", fontsize=10)
         ax.axis("off")
     fig.tight_layout()
