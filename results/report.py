@@ -209,9 +209,9 @@ def curve(rows: list[dict], columns: tuple, smooth: bool):
 
 
 def plot_band(ax, curves: list, colour, label: str) -> None:
-    """The seeds' curves [(steps, values)] as their mean and a band of ± one standard error, on a grid up
-    to the shortest run's last step."""
-    grid = np.linspace(0, min(steps[-1] for steps, _ in curves), 200)
+    """The seeds' curves [(steps, values)] as their mean and a band of ± one standard error, on a grid from
+    the latest first logged step to the shortest run's last (no value drawn where none was logged)."""
+    grid = np.linspace(max(steps[0] for steps, _ in curves), min(steps[-1] for steps, _ in curves), 200)
     values = np.array([np.interp(grid, steps, v) for steps, v in curves])
     mean = values.mean(axis=0)
     se = values.std(axis=0, ddof=1) / np.sqrt(len(values)) if len(values) > 1 else np.zeros_like(mean)
