@@ -6,7 +6,6 @@ import json
 import os
 import re
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
@@ -97,11 +96,11 @@ def test_a_single_seed_shows_its_values_without_spread(tmp_path):
 def test_training_band_starts_where_the_seeds_logged():
     """A curve logged from step 200k (a validation return every 100 updates) is drawn from 200k on, not
     stretched flat back to step 0; with two seeds the band spans the steps both logged."""
-    fig, ax = plt.subplots()
+    fig, ax = report.plt.subplots()  # the report's pyplot, on its file-only backend
     report.plot_band(ax, [(np.array([2e5, 4e5, 6e5]), np.array([1.0, 2.0, 3.0])),
                           (np.array([4e5, 6e5, 8e5]), np.array([3.0, 4.0, 5.0]))], "C0", "two seeds")
     steps, mean = ax.lines[0].get_data()
-    plt.close(fig)
+    report.plt.close(fig)
     assert steps[0] == pytest.approx(0.4) and steps[-1] == pytest.approx(0.6)
     assert mean[0] == pytest.approx(2.5) and mean[-1] == pytest.approx(3.5)
 
