@@ -35,7 +35,8 @@ validation, checkpoints, level images and final evaluation never run. Only the l
 levels, 32 for the walker's 16 env copies) so that replay can start at the second update, as in scripts_sps.py, and
 CarRacing leaves out the Formula-1 tracks (`--f1-tracks none`), which only its evaluation reads.
 
-Without CUDA it says so in one line and runs the CPU part only.
+Without CUDA it says so in one line and runs the CPU part only. Without gymnasium's Box2D extra (Box2D and
+pygame-ce, which a GPU machine may lack) it stops with one error line before any run.
 """
 
 from __future__ import annotations
@@ -304,6 +305,12 @@ def main() -> None:
     options = parser.parse_args()
     if not os.path.isdir(os.path.dirname(os.path.abspath(options.out))):
         parser.error(f"--out {options.out}: no such directory")
+    try:  # CarRacing and the walker are gymnasium's Box2D envs: without Box2D or pygame their runs would each fail
+        import gymnasium.envs.box2d.bipedal_walker  # noqa: F401
+        import gymnasium.envs.box2d.car_racing  # noqa: F401
+    except Exception as error:  # gymnasium's DependencyNotInstalled names what is missing
+        parser.error("the CarRacing and walker runs need gymnasium's Box2D extra (Box2D and pygame-ce): "
+                     + " ".join(str(error).split()))
 
     import torch
 

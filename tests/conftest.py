@@ -3,6 +3,8 @@ thread pool makes these small workloads many times slower. Subprocesses inherit 
 
 import os
 
+import pytest
+
 os.environ["OMP_NUM_THREADS"] = "1"
 
 import torch  # noqa: E402
@@ -12,6 +14,20 @@ torch.set_num_threads(1)
 import envs  # noqa: E402
 
 envs.keep_freed_memory()  # as every script does on a CPU: the tests' PPO updates run at the scripts' speed
+
+
+@pytest.fixture
+def restore_torch_settings():
+    """torch's process-wide settings as they were before the test: a test that chooses a device, or runs a
+    script in this process, sets them the way a GPU run wants them (envs.runs.select_device)."""
+    saved = (torch.backends.cudnn.deterministic, torch.backends.cudnn.allow_tf32, torch.backends.cudnn.benchmark,
+             torch.distributions.Distribution._validate_args, torch.are_deterministic_algorithms_enabled(),
+             torch.is_deterministic_algorithms_warn_only_enabled())
+    yield
+    (torch.backends.cudnn.deterministic, torch.backends.cudnn.allow_tf32, torch.backends.cudnn.benchmark,
+     validate, deterministic, warn_only) = saved
+    torch.distributions.Distribution.set_default_validate_args(validate)
+    torch.use_deterministic_algorithms(deterministic, warn_only=warn_only)
 
 
 def shared_f1_track_file() -> str:

@@ -34,7 +34,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
 from gpu_check import ROLLOUT_FUNCTIONS, UPDATE_FUNCTION, StopRun, run_script  # noqa: E402
 
-pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+# Each test leaves torch's process-wide settings as it found them: a script run in this process with
+# --torch-deterministic on the GPU turns on deterministic algorithms for the whole process.
+pytestmark = [pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU"),
+              pytest.mark.usefixtures("restore_torch_settings")]
 
 DEVICE = "cuda"
 ON_GPU = dict(os.environ)
@@ -254,6 +257,7 @@ def test_every_tensor_of_an_update_is_on_the_gpu(name, tmp_path, monkeypatch):
         namespace["log_scalars"] = stop_once_trained
 
     namespace = run_script(os.path.join(ROOT, CONFIGS[name][0]), arguments(name, UPDATES), instrument)
+    namespace["tensorboard"].close()  # its events written here, before the test leaves this directory
     assert str(namespace["device"]) == DEVICE
     assert UPDATE_FUNCTION in calls and any(function in calls for function in ROLLOUT_FUNCTIONS), calls
     assert not watch.found, "ops off the GPU: " + "; ".join(f"{op} at {where}" for op, where in watch.found.items())
@@ -264,9 +268,6 @@ def test_torch_deterministic_turns_on_deterministic_algorithms_on_the_gpu_only()
     on a CPU, whose results it must not change, it leaves them as they are."""
     from envs.runs import select_device
 
-    try:
-        assert select_device(False, True, "maze").type == "cpu" and not torch.are_deterministic_algorithms_enabled()
-        assert select_device(True, True, "maze").type == "cuda" and torch.are_deterministic_algorithms_enabled()
-        assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"
-    finally:
-        torch.use_deterministic_algorithms(False)
+    assert select_device(False, True, "maze").type == "cpu" and not torch.are_deterministic_algorithms_enabled()
+    assert select_device(True, True, "maze").type == "cuda" and torch.are_deterministic_algorithms_enabled()
+    assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":4096:8"

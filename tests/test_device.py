@@ -9,16 +9,6 @@ from envs.evaluation import to_torch
 from envs.runs import select_device
 
 
-@pytest.fixture
-def restore_torch_settings():
-    saved = (torch.backends.cudnn.deterministic, torch.backends.cudnn.allow_tf32, torch.backends.cudnn.benchmark,
-             torch.distributions.Distribution._validate_args)
-    yield
-    (torch.backends.cudnn.deterministic, torch.backends.cudnn.allow_tf32, torch.backends.cudnn.benchmark,
-     validate) = saved
-    torch.distributions.Distribution.set_default_validate_args(validate)
-
-
 @pytest.mark.parametrize("use_cuda", [True, False])
 def test_a_cpu_machine_runs_on_the_cpu_with_cuda_or_not(use_cuda, restore_torch_settings):
     device = select_device(use_cuda, True, "maze")

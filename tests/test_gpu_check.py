@@ -70,3 +70,13 @@ def test_an_out_file_in_a_missing_directory_is_one_error_line(tmp_path):
     assert result.returncode == 2
     assert result.stderr.startswith("error:") and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert not (tmp_path / "missing").exists()
+
+
+def test_a_machine_without_pygame_gets_one_error_line_before_any_run(tmp_path):
+    """gymnasium's CarRacing imports pygame: without it both Box2D envs' runs would fail, one by one."""
+    (tmp_path / "pygame.py").write_text("raise ImportError('no pygame on this machine')\n")
+    result = subprocess.run([sys.executable, CHECK, "--out", str(tmp_path / "check.json")], capture_output=True, text=True,
+                            env={**os.environ, "PYTHONPATH": str(tmp_path)}, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.startswith("error:") and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert "pygame" in result.stderr and not (tmp_path / "check.json").exists()
