@@ -72,7 +72,8 @@ def test_carracing_report_on_hand_worked_runs(tmp_path, capsys):
     italy = paired["per_level"]["Italy"]
     assert (italy["mean"], italy["se"], italy["published"]) == (pytest.approx(250.0), pytest.approx(250.0), {"mean": 131.56, "se": 23.71})
     assert (paired["mean_return"], paired["se"], paired["iqm"], paired["optimality_gap"]) == pytest.approx((12.5, 12.5, 0.0, 887.5))
-    assert (dr["mean_return"], dr["se"], dr["seeds"], dr["steps"]) == pytest.approx((400.0, 0.0, [1], [1_000_000]))
+    assert (dr["mean_return"], dr["se"]) == pytest.approx((400.0, 0.0))
+    assert (dr["seeds"], dr["steps"]) == ([1], [1_000_000])
     assert dr["published"] == {"steps": 5_000_000, "seeds": None, "mean_return": {"mean": 342.0, "se": None}}
     assert "published" not in dr["per_level"]["Italy"]  # the paper has no DR per circuit
     for s in (plr, paired):
