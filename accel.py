@@ -30,12 +30,12 @@ import torch.nn as nn
 from torch.utils.tensorboard import SummaryWriter
 
 import envs
-from envs.evaluation import evaluate_all, to_torch
+from envs.evaluation import evaluate_all, milestones_passed, save_held_out_evaluation, to_torch
 from envs.levels import LevelBuffer
 from envs.normalize import ReturnNormalizer
 from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, save_checkpoint,
-                       select_device, student_and_generators, student_class, true_regret_stats)
+from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, record_continuation,
+                       resumed_args, save_checkpoint, select_device, student_and_generators, student_class, true_regret_stats)
 from envs.scores import SCORE_FUNCTIONS, highest_returns, level_scores, score_true_regret_correlations
 from envs.video import capture_videos
 
@@ -134,6 +134,10 @@ class Args:
     """updates between validation runs on the paper's validation levels"""
     eval_episodes: int = 100
     """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
+    milestones: tuple[int, ...] = ()
+    """env steps at which the student is also evaluated on the held-out levels as at the end, into
+    eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random
+    streams, so training goes on as without it)"""
     checkpoint_interval: int = 50
     """updates between checkpoints (written atomically)"""
     levels_interval: int = 500
@@ -174,18 +178,8 @@ def paper_args(env: str = "maze", **options) -> Args:
 
 def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, and check them."""
-    if args.resume is not None:
-        path = os.path.join(args.resume, "args.json")
-        if not (os.path.isfile(path) and os.path.isfile(os.path.join(args.resume, "checkpoint.pt"))):
-            fail(f"--resume {args.resume}: not a run directory (needs args.json and checkpoint.pt)")
-        with open(path) as f:
-            saved = json.load(f)
-        this_script = os.path.basename(__file__)
-        script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
-        saved.pop("student", None)  # the student network's class, which student_class reads
-        if script != this_script or set(saved) - {field.name for field in dataclasses.fields(Args)}:
-            fail(f"--resume {args.resume}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
-        args = Args(**{**saved, "resume": args.resume})
+    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
+        args = resumed_args(Args, args, __file__, budgets=("total_timesteps", "gradient_updates"))
     if args.env not in envs.REGISTRY:
         fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
     check_track_file(args)
@@ -213,8 +207,8 @@ def resolve_args(args: Args) -> Args:
     if min(args.gradient_updates, args.total_timesteps) < 0 or max(args.gradient_updates, args.total_timesteps) == 0:
         fail("--gradient-updates and --total-timesteps must be >= 0, and one of them positive")
     if min(args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
-           args.eval_interval, args.checkpoint_interval, args.levels_interval) <= 0:
-        fail("step counts, epochs, episodes and intervals must be positive")
+           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
+        fail("step counts, epochs, episodes, intervals and milestones must be positive")
     return args
 
 
@@ -458,6 +452,7 @@ if __name__ == "__main__":
             writer = csv.DictWriter(f, fieldnames=metrics)
             writer.writeheader()
             writer.writerows(kept)
+        record_continuation(run_dir, args, global_step)  # a longer budget or other milestones, if given
         print(f"resuming {run_dir} at update {start_update}, step {global_step}, gradient update {gradient_updates}")
     else:
         run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
@@ -478,10 +473,10 @@ if __name__ == "__main__":
     # TensorBoard events beside metrics.csv; a resumed run drops those logged after its checkpoint, as metrics.csv
     tensorboard = SummaryWriter(run_dir, purge_step=global_step + 1 if args.resume else None)
     window_start, window_steps = time.time(), 0
-    update = start_update - 1
+    update, steps_at_start = start_update - 1, global_step  # (at each update's start; milestones lie after it)
     while budget_used() < 1.0:
         update += 1
-        update_start = time.time()
+        update_start, steps_at_start = time.time(), global_step
         replay = decide_replay(len(buffer), args, level_rng)
         if replay:
             replay_index = buffer.sample(args.num_envs, update, level_rng)
@@ -544,6 +539,11 @@ if __name__ == "__main__":
             row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
             row["val_return"] = np.mean([r["mean_return"] for r in validation.values()])
             print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
+        reached = milestones_passed(args.milestones, steps_at_start, global_step)
+        if reached and not last_update:  # (the last update's milestones: with the final evaluation below)
+            agent.eval()
+            save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, device,
+                                     [os.path.join(run_dir, f"eval_{steps}.json") for steps in reached])
         metrics_writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
         metrics_file.flush()
         log_scalars(tensorboard, row, global_step)
@@ -577,10 +577,8 @@ if __name__ == "__main__":
 
     # Final zero-shot evaluation on every held-out level.
     agent.eval()
-    results = evaluate_all(agent, args.env, list(env.test_levels()), args.eval_episodes, args.seed, device)
-    results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}
-    with open(os.path.join(run_dir, "eval.json"), "w") as f:
-        json.dump(results, f, indent=2)
+    at_end = [os.path.join(run_dir, f"eval_{steps}.json") for steps in milestones_passed(args.milestones, steps_at_start, global_step)]
+    results = save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, device, [os.path.join(run_dir, "eval.json"), *at_end])
     for name, r in results.items():
         print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
     if args.capture_video:

@@ -73,6 +73,27 @@ def evaluate_all(agent, env_name: str, names, episodes: int, seed: int, device) 
     return results
 
 
+def save_held_out_evaluation(agent, env_name: str, episodes: int, seed: int, device, paths) -> dict:
+    """The zero-shot evaluation on every held-out level of the env, with the mean over them: what a run
+    writes as eval.json at its end, and as eval_<steps>.json at a milestone (to each of `paths`). It draws
+    from its own random streams (`evaluate`), so a run evaluated at milestones trains as one that is not."""
+    env = envs.make(env_name, 1, seed)
+    names = list(env.test_levels())
+    env.close()
+    results = evaluate_all(agent, env_name, names, episodes, seed, device)
+    results["mean"] = {k: float(np.mean([r[k] for r in results.values()])) for k in ("solved_rate", "mean_return")}
+    for path in paths:
+        with open(path, "w") as f:
+            json.dump(results, f, indent=2)
+    return results
+
+
+def milestones_passed(milestones, steps_before: int, steps_after: int) -> list[int]:
+    """The milestones (env steps) an update took the run to or past: those in (steps_before, steps_after].
+    A milestone's evaluation is the one a run given that many steps ends with."""
+    return [m for m in milestones if steps_before < m <= steps_after]
+
+
 # ---------------------------------------------------------------------------------------------------
 # Aggregating over seeds: mean and standard error per level, IQM and optimality gap with 95%
 # stratified-bootstrap percentile intervals (the methods of Agarwal et al. 2021, as in their rliable).

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import importlib
 import io
 import json
@@ -78,6 +79,65 @@ def check_track_file(args) -> None:
             except ValueError as error:
                 fail(str(error))
         os.environ["CLEANUED_F1_TRACKS"] = path
+
+
+def options_given(names) -> list[str]:
+    """Which of the options `names` (field names) the command line sets: --total-timesteps N,
+    --total_timesteps=N and the like."""
+    flags = {"--" + spelling: name for name in names for spelling in (name, name.replace("_", "-"))}
+    return [flags[word.split("=")[0]] for word in sys.argv[1:] if word.split("=")[0] in flags]
+
+
+# What a run has done of each budget, as its checkpoint records it, and in what unit.
+BUDGET_PROGRESS = {"total_timesteps": ("global_step", "env steps"), "gradient_updates": ("gradient_updates", "gradient updates")}
+
+
+def resumed_args(args_class, args, script_path: str, budgets=("total_timesteps",)):
+    """A resumed run's arguments (args.resume names its directory): its args.json's, one `error:` line if
+    that is not a run of this script. The command line may change two things, its budgets and its
+    milestones, and continue a run, finished or not, to a longer budget. Nothing a script does depends on
+    its budget (no learning rate or other schedule runs over it; the budget only says when to stop), so a
+    run continued to N steps equals one given N steps from the start. A budget below what the run has
+    done is refused."""
+    run_dir = args.resume
+    path, checkpoint_path = os.path.join(run_dir, "args.json"), os.path.join(run_dir, "checkpoint.pt")
+    if not (os.path.isfile(path) and os.path.isfile(checkpoint_path)):
+        fail(f"--resume {run_dir}: not a run directory (needs args.json and checkpoint.pt)")
+    with open(path) as f:
+        saved = json.load(f)
+    this_script = os.path.basename(script_path)
+    script = saved.pop("script", this_script)  # (runs written before the script was saved: known by their options)
+    saved.pop("student", None)  # the student network's class, which student_class reads
+    if script != this_script or set(saved) - {field.name for field in dataclasses.fields(args_class)}:
+        fail(f"--resume {run_dir}: a run of {script if script != this_script else 'another script'}, not of {this_script}")
+    changed = {name: getattr(args, name) for name in options_given((*budgets, "milestones"))}
+    raised = [name for name in budgets if name in changed and changed[name] != saved.get(name)]
+    if raised:
+        checkpoint = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
+        for name in raised:
+            key, unit = BUDGET_PROGRESS[name]
+            if 0 < changed[name] < checkpoint[key]:
+                fail(f"--{name.replace('_', '-')} {changed[name]} is below the {checkpoint[key]} {unit} the run {run_dir} has done")
+    return args_class(**{**saved, **changed, "resume": run_dir})
+
+
+def record_continuation(run_dir: str, args, steps_done: int) -> None:
+    """A resumed run given other budgets or milestones records them in its args.json, so that a later
+    --resume continues to them. A finished run continued keeps its final evaluation as eval_<its old
+    budget in env steps>.json, a milestone's name: eval.json is the evaluation at the end."""
+    path = os.path.join(run_dir, "args.json")
+    with open(path) as f:
+        saved = json.load(f)
+    now = {name: getattr(args, name) for name in (*BUDGET_PROGRESS, "milestones") if hasattr(args, name)}
+    now["milestones"] = list(now["milestones"])
+    if all(saved.get(name) == value for name, value in now.items()):
+        return
+    final = os.path.join(run_dir, "eval.json")
+    if os.path.isfile(final):
+        os.replace(final, os.path.join(run_dir, f"eval_{saved['total_timesteps'] or steps_done}.json"))
+    with open(path + ".tmp", "w") as f:
+        json.dump({**saved, **now}, f, indent=2)
+    os.replace(path + ".tmp", path)
 
 
 def class_path(cls: type) -> str:

@@ -11,6 +11,9 @@ training.png (c), levels.png (d) and true_regret.png (e: each algorithm's own sc
 regret, beside the true regret of the training levels and the rank correlation of the two, for the runs
 that logged it) and scores.png (f: the three level scores' rank correlations with the true regret, and
 the held-out solved rate of the runs that logged them).
+
+A long/ folder in DIR, of runs evaluated at milestones (DIR/long/<experiment>/<seed>/eval_<steps>.json),
+is reported into itself by results/report_milestones.py.
 """
 
 from __future__ import annotations
@@ -219,11 +222,21 @@ def plot_band(ax, curves: list, colour, label: str) -> None:
     ax.fill_between(grid / 1e6, mean - se, mean + se, color=colour, alpha=0.2)
 
 
+def piece(steps_and_values: tuple, low: float, high: float) -> tuple:
+    """A curve between two steps (its own first step if later than `low`), its ends interpolated."""
+    steps, values = steps_and_values
+    start = max(low, steps[0])
+    inside = (steps > start) & (steps < high)
+    return np.r_[start, steps[inside], high], np.r_[np.interp(start, steps, values), values[inside], np.interp(high, steps, values)]
+
+
 def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailing mean over {smoothing} updates except "
-                  "validation; band: ± s.e. over seeds)", rows: int = 1) -> None:
+                  "validation; band: ± s.e. over seeds)", rows: int = 1, to_the_end: bool = False) -> None:
     """(c) Training curves, a band of ± one standard error over seeds around their mean, one quantity per
     panel on its own axis, the panels in `rows` rows. The validation columns (val_*), logged every few
-    updates, are drawn as logged; the others as a trailing mean."""
+    updates, are drawn as logged; the others as a trailing mean. An experiment's curve ends where its
+    shortest seed ends, or with `to_the_end` goes on over the seeds that ran further (a seed continued
+    beyond its fellows, or seeds still running, each as far as it got; the band over the seeds there)."""
     colour = colours(runs)
     per_row = -(-len(panels) // rows)
     fig, axes = plt.subplots(rows, per_row, figsize=(4.2 * per_row, 3.6 * rows), squeeze=False)
@@ -233,8 +246,13 @@ def plot_training(runs: dict, path: str, panels=CURVES, title="Training (trailin
     for ax, (title_of_panel, columns, limits) in zip(axes, panels):
         for name, seeds in runs.items():
             curves = [c for c in (curve(s["metrics"], columns, smooth=not columns[0].startswith("val_")) for s in seeds.values()) if c]
-            if curves:
+            if curves and not to_the_end:
                 plot_band(ax, curves, colour[name], EXPERIMENTS.get(name, name))
+            low = -np.inf
+            for end in sorted({steps[-1] for steps, _ in curves}) if to_the_end else []:
+                plot_band(ax, [piece(c, low, end) for c in curves if c[0][-1] >= end], colour[name],
+                          EXPERIMENTS.get(name, name) if low == -np.inf else None)
+                low = end
         ax.set_title(title_of_panel, fontsize=10)
         ax.set_xlabel("protagonist env steps (M)")
         if limits:
@@ -331,6 +349,24 @@ def env_of(runs: dict) -> str:
     return found.pop()
 
 
+def write_report(directory: str, runs: dict) -> None:
+    """summary.json, table.md and the figures of the maze runs into directory."""
+    summary = summarize(runs)
+    with open(os.path.join(directory, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+    with open(os.path.join(directory, "table.md"), "w") as f:
+        f.write(table(summary))
+    plot_solved_per_maze(summary, os.path.join(directory, "solved_per_maze.png"))
+    plot_aggregates(summary, os.path.join(directory, "aggregates.png"))
+    plot_training(runs, os.path.join(directory, "training.png"))
+    plot_levels(runs, os.path.join(directory, "levels.png"))
+    plot_true_regret(runs, os.path.join(directory, "true_regret.png"))
+    plot_scores(runs, summary, os.path.join(directory, "scores.png"))
+    for name, s in summary.items():
+        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed{'s' * (len(s['seeds']) > 1)}  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
+              f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description="Regenerate a reproduction's summary, table and figures (maze, "
                                                  "carracing or walker: the runs' env, from their args.json).")
@@ -345,21 +381,13 @@ def main(argv=None) -> None:
         from results import report_continuous  # imported here: it builds on this module's helpers
 
         report_continuous.write_report(args.directory, runs, env)
-        return
-    summary = summarize(runs)
-    with open(os.path.join(args.directory, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=2)
-    with open(os.path.join(args.directory, "table.md"), "w") as f:
-        f.write(table(summary))
-    plot_solved_per_maze(summary, os.path.join(args.directory, "solved_per_maze.png"))
-    plot_aggregates(summary, os.path.join(args.directory, "aggregates.png"))
-    plot_training(runs, os.path.join(args.directory, "training.png"))
-    plot_levels(runs, os.path.join(args.directory, "levels.png"))
-    plot_true_regret(runs, os.path.join(args.directory, "true_regret.png"))
-    plot_scores(runs, summary, os.path.join(args.directory, "scores.png"))
-    for name, s in summary.items():
-        print(f"{EXPERIMENTS.get(name, name):20s} {len(s['seeds'])} seed{'s' * (len(s['seeds']) > 1)}  mean solved {cell(s['mean_solved_rate'], s['se'], len(s['seeds']))}  "
-              f"IQM {s['iqm']:.2f}  optimality gap {s['optimality_gap']:.2f}")
+    else:
+        write_report(args.directory, runs)
+    long_runs = os.path.join(args.directory, "long")
+    if os.path.isdir(long_runs):
+        from results import report_milestones  # imported here: it builds on this module's helpers
+
+        report_milestones.write_report(long_runs, runs, env)
 
 
 if __name__ == "__main__":

@@ -19,13 +19,15 @@ command line per experiment:
 Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scripts' own run directory,
 with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
 resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
-continued by launching it again. Runs go in the file's order, seed by seed (the first seed of every
+continued by launching it again. A resumed run takes the file's budget and milestones (--total-timesteps,
+--gradient-updates, --milestones): a sweep file that raises a budget continues its finished runs to it,
+from the same work directory (a finished run whose budget is at least the file's is skipped). Runs go in the file's order, seed by seed (the first seed of every
 experiment, then the second, ...), except that `later` experiments' other seeds wait for all the rest.
 Locally, each of the `parallel` lanes takes the next run no lane has taken, so a long run does not hold
 up a lane's queue; a run that fails is reported and the rest go on. To stop a sweep, signal its process
 group (`kill -- -PGID`): a run killed by a signal ends its lane, and launching again resumes it. A run in progress holds a lock file (<workdir>/locks/), so a second
-launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv and
-eval.json to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
+launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv,
+eval.json and eval_<steps>.json (milestones) to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
 plus the final student's weights of seed 1 as agent.pt.
 """
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 import argparse
 import fcntl
 import glob
+import json
 import os
 import shutil
 import subprocess
@@ -90,6 +93,35 @@ def run_directory(workdir: str, env: str, experiment: str, seed: int) -> str | N
     return found[-1] if found else None
 
 
+# The options a resumed run takes from the sweep file: its budgets and milestones (it keeps its others).
+CONTINUED = ("--total-timesteps", "--gradient-updates", "--milestones")
+
+
+def continued_options(command: list[str]) -> list[str]:
+    """The words of `command` that give CONTINUED options, with their values."""
+    words, keep = [], False
+    for word in command[1:]:
+        if word.startswith("--"):
+            keep = word.split("=")[0] in CONTINUED
+        if keep:
+            words.append(word)
+    return words
+
+
+def finished(run: str, command: list[str]) -> bool:
+    """The run ended (eval.json) with budgets at least the command's (those it gives; 0: no limit)."""
+    if not os.path.isfile(os.path.join(run, "eval.json")):
+        return False
+    with open(os.path.join(run, "args.json")) as f:
+        saved = json.load(f)
+    for flag in CONTINUED[:2]:
+        if flag in command[:-1]:
+            asked, had = int(command[command.index(flag) + 1]), saved.get(flag[2:].replace("-", "_"), 0)
+            if had and (asked == 0 or had < asked):
+                return False
+    return True
+
+
 class StopSweep(BaseException):
     """A run was killed by a signal (the sweep is being stopped): its lane ends rather than go on."""
 
@@ -113,11 +145,11 @@ def run_unlocked(job: dict, env: str) -> str:
     """run_one's work, under the run's lock."""
     command, workdir = job["command"], job["workdir"]
     existing = run_directory(workdir, env, job["experiment"], job["seed"])
-    if existing and os.path.isfile(os.path.join(existing, "eval.json")):
+    if existing and finished(existing, command):
         return f"finished earlier: {existing}"
     script = os.path.join(ROOT, command[0])
     if existing and os.path.isfile(os.path.join(existing, "checkpoint.pt")):
-        arguments, action = [script, "--resume", existing], f"resumed {existing}"
+        arguments, action = [script, "--resume", existing, *continued_options(command)], f"resumed {existing}"
     else:
         if existing:
             shutil.rmtree(existing)
@@ -181,22 +213,30 @@ def launch(sweep: dict, jobs: list[dict], cluster: str, workdir: str) -> None:
 
 
 def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
-    """Copy each finished run's small outputs to DEST/<experiment>/<seed>/ (and seed 1's student weights)."""
+    """Copy each finished run's small outputs to DEST/<experiment>/<seed>/ (and seed 1's student weights),
+    and those of a run still going that has passed a milestone: its args.json, its metrics.csv so far and
+    its milestones' evaluations (a finished run's eval.json copied earlier is removed: the run goes on)."""
     import torch
 
     for job in jobs:
         command = job["command"]
         run = run_directory(job["workdir"], command[command.index("--env") + 1], job["experiment"], job["seed"])
-        if not (run and os.path.isfile(os.path.join(run, "eval.json"))):
+        milestones = glob.glob(os.path.join(run, "eval_*.json")) if run else []
+        ended = run is not None and os.path.isfile(os.path.join(run, "eval.json"))
+        if not (ended or milestones):
             continue
         target = os.path.join(destination, job["experiment"], str(job["seed"]))
         os.makedirs(target, exist_ok=True)
-        for name in ("args.json", "metrics.csv", "eval.json"):
+        for name in ("args.json", "metrics.csv", *(["eval.json"] if ended else [])):
             shutil.copy(os.path.join(run, name), target)
+        if not ended and os.path.isfile(os.path.join(target, "eval.json")):
+            os.remove(os.path.join(target, "eval.json"))
+        for milestone in milestones:
+            shutil.copy(milestone, target)
         images = glob.glob(os.path.join(run, "levels_*.png"))
-        if images:  # the levels of the curriculum at the end
+        if images:  # the levels of the curriculum at the end (so far)
             shutil.copy(max(images, key=lambda path: int(path.rsplit("_", 1)[1][:-4])), os.path.join(target, "levels.png"))
-        if job["seed"] == min(sweep["seeds"]):
+        if ended and job["seed"] == min(sweep["seeds"]):
             checkpoint = torch.load(os.path.join(run, "checkpoint.pt"), map_location="cpu", weights_only=False)
             student = checkpoint["agent"] if "agent" in checkpoint else checkpoint["protagonist"]
             torch.save(student, os.path.join(target, "agent.pt"))

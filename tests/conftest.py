@@ -38,6 +38,23 @@ def shared_f1_track_file() -> str:
     return path if os.path.isfile(path) else SHIPPED_F1_TRACKS
 
 
+def f1_track_file(folder, names, stem: str) -> str:
+    """A Formula-1 track file of some circuits of the shipped one, with their frame limits, in the format
+    users supply: folder/<stem>.npz and folder/<stem>_meta.json. Returns the .npz's path."""
+    import json
+
+    import numpy as np
+
+    shipped = shared_f1_track_file()
+    with np.load(shipped) as data:
+        np.savez(os.path.join(folder, f"{stem}.npz"), **{name: data[name] for name in names})
+    with open(os.path.splitext(shipped)[0] + "_meta.json") as f:
+        meta = json.load(f)
+    with open(os.path.join(folder, f"{stem}_meta.json"), "w") as f:
+        json.dump({name: meta[name] for name in names}, f)
+    return os.path.join(folder, f"{stem}.npz")
+
+
 def assert_acting_equals_training(net, obs: dict, state, done, atol: float) -> None:
     """A recurrent net's acting step (no gradient, derived weights) gives the training path's action for
     the same random draw and its log-probability, entropy, value and new state."""

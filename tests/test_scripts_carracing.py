@@ -10,10 +10,9 @@ import os
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 import torch
-from conftest import shared_f1_track_file
+from conftest import f1_track_file, shared_f1_track_file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIPPED_TRACKS = shared_f1_track_file()
@@ -40,14 +39,7 @@ def run(script, args, cwd):
 @pytest.fixture(scope="module")
 def track_file(tmp_path_factory):
     """Two F1 tracks of the shipped file, with their frame limits, in the format users supply."""
-    folder = tmp_path_factory.mktemp("tracks")
-    with np.load(SHIPPED_TRACKS) as data:
-        np.savez(folder / "two.npz", **{name: data[name] for name in TWO_TRACKS})
-    with open(os.path.splitext(SHIPPED_TRACKS)[0] + "_meta.json") as f:
-        meta = json.load(f)
-    with open(folder / "two_meta.json", "w") as f:
-        json.dump({name: meta[name] for name in TWO_TRACKS}, f)
-    return str(folder / "two.npz")
+    return f1_track_file(tmp_path_factory.mktemp("tracks"), TWO_TRACKS, "two")
 
 
 @pytest.mark.parametrize("name", list(SCRIPTS))

@@ -11,9 +11,8 @@ import json
 import os
 import re
 
-import numpy as np
 import pytest
-from conftest import shared_f1_track_file
+from conftest import f1_track_file
 from test_scripts_accel_evo import kill_and_resume, only_run_dir, read_metrics, run
 
 # The tiniest runs of each env: 12 updates, a checkpoint after each, validation after updates 6 and 12;
@@ -32,15 +31,8 @@ CONFIGS = {
 def finished(tmp_path_factory):
     """{(env, "straight" or "killed"): (result, cwd)}; a killed run's result is (finished before the kill,
     the resumed run's result)."""
-    tracks = tmp_path_factory.mktemp("tracks")
-    shipped = shared_f1_track_file()
-    with np.load(shipped) as data:
-        np.savez(tracks / "italy.npz", Italy=data["Italy"])
-    with open(os.path.splitext(shipped)[0] + "_meta.json") as f:
-        meta = json.load(f)
-    with open(tracks / "italy_meta.json", "w") as f:
-        json.dump({"Italy": meta["Italy"]}, f)
-    configs = {**CONFIGS, "carracing": [*CONFIGS["carracing"], "--f1-tracks", str(tracks / "italy.npz")]}
+    italy = f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy")
+    configs = {**CONFIGS, "carracing": [*CONFIGS["carracing"], "--f1-tracks", italy]}
     cwds = {(env, kind): tmp_path_factory.mktemp(f"{env}-{kind}") for env in configs for kind in ("killed", "straight")}
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
         futures = {(env, kind): pool.submit(kill_and_resume if kind == "killed" else run, "plr.py", configs[env], cwds[env, kind])

@@ -165,3 +165,36 @@ def test_a_run_killed_by_a_signal_ends_its_lane(tmp_path):
     output, _ = process.communicate(timeout=120)
     assert process.returncode == 1 and "stopped by signal 15" in output, output
     assert not (tmp_path / "logs" / "second_1.log").exists()
+
+
+def test_a_sweep_file_that_raises_the_budget_continues_its_finished_runs(tmp_path):
+    """A finished DR run of 1024 steps; the same sweep with a budget of 2048 and milestones continues it
+    (it is not skipped as finished, nor started anew) to 2048, where its first end's evaluation is kept as
+    eval_1024.json; a third launch with the old budget skips it. Collecting a run still going copies its
+    milestones so far and no eval.json."""
+    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "1024", *TINY[TINY.index("--total-timesteps") + 2:]]
+    first = sweep_file(tmp_path / "first.toml", {"dr": ["plr.py", *short, "--replay-prob", "0"]})
+    assert sweep(first, "--workdir", str(tmp_path)).returncode == 0
+    (run,) = (tmp_path / "runs").glob("maze__dr__1__*")
+    longer = sweep_file(tmp_path / "longer.toml", {"dr": ["plr.py", *short[:short.index("--total-timesteps")], "--total-timesteps", "2048",
+                                                          "--milestones", "1024", "2048", "--replay-prob", "0"]})
+    result = sweep(longer, "--workdir", str(tmp_path))
+    assert result.returncode == 0 and f"resumed {run}" in result.stdout, result.stdout + result.stderr
+    assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 17))  # 2048 / 128 updates, once each
+    assert {"eval.json", "eval_1024.json", "eval_2048.json"} <= set(os.listdir(run))
+    assert json.loads((run / "args.json").read_text())["total_timesteps"] == 2048
+    again = sweep(first, "--workdir", str(tmp_path))
+    assert again.returncode == 0 and "finished earlier" in again.stdout
+
+    (run / "eval.json").unlink()  # as a run continued further would be, until its new end
+    collected = tmp_path / "results"
+    assert sweep(longer, "--workdir", str(tmp_path), "--collect", str(collected)).returncode == 0
+    assert sorted(os.listdir(collected / "dr" / "1")) == ["args.json", "eval_1024.json", "eval_2048.json", "levels.png", "metrics.csv"]
+
+
+@pytest.mark.parametrize("name", sorted(os.listdir(os.path.join(ROOT, "results", "sweeps"))))
+def test_the_committed_sweep_files_load(name):
+    """Every sweep file of results/sweeps is well formed (a bad one stops with exit status 2)."""
+    from results.sweep import load_sweep
+
+    assert load_sweep(os.path.join(ROOT, "results", "sweeps", name))["experiments"]
