@@ -4,8 +4,8 @@
 down in envs/interface.py (`Env`): random_levels, reset, step, test_levels, mutate, level_metrics,
 render, teacher, Student, Teacher and the rest. `REGISTRY` names every env: adding an env is one module
 that implements the interface and one entry there, and every script's `--env` then offers it. Importing
-`envs` changes nothing in the process (an env's module is imported when it is first made); each
-script's main calls `keep_freed_memory()` first.
+`envs` changes nothing in the process (an env's module is imported when it is first made); a run on
+the CPU calls `keep_freed_memory()` when it chooses its device (envs.runs.select_device).
 """
 
 from __future__ import annotations

@@ -16,6 +16,9 @@ aggregates, as the paper's mean is over the circuits alone. The walker's are its
 
 A GIF of a student plays the env, so it is not one of the regenerated files: the report prints the
 command that records one of the best seed-1 student (its weights are committed as agent.pt).
+
+It builds on the helpers of results/report_common.py; results/report_milestones.py takes the
+reproductions' published numbers and training curves from here.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from envs.evaluation import aggregate, bootstrap_interval
-from results.report import EXPERIMENTS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
+from results.report_common import EXPERIMENTS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
 
 F1_CIRCUITS = ["Australia", "Austria", "Bahrain", "Belgium", "Brazil", "China", "France", "Germany", "Hungary", "Italy",
                "Malaysia", "Mexico", "Monaco", "Netherlands", "Portugal", "Russia", "Singapore", "Spain", "UK", "USA"]
@@ -86,7 +89,7 @@ class Reproduction:
     source: str  # whose numbers are published: "paper", "reference"
     published: dict  # experiment -> {"steps", "seeds" (None: unknown), "returns": {level or "mean": (mean, se or None)}}
     note: str  # where the published numbers come from, under the table
-    curves: list  # the training curves' panels, as results.report.plot_training takes them
+    curves: list  # the training curves' panels, as results.report_common.plot_training takes them
     gif_level: str  # the level of the GIF
 
 

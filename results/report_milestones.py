@@ -13,12 +13,15 @@ seeds and its IQM over seeds x levels; the earlier campaign's in DIR and the pub
 table_<steps>.md (one per milestone, e.g. table_3M.md: a row per experiment with a run there),
 returns_over_training.png or solved_over_training.png (a: the figure of merit and its IQM against
 training steps, the earlier campaign's and the published means marked) and training.png (b: the
-training curves of results/report.py over the long runs, each experiment's to the end of its longest
-seed).
+training curves of the env's own report over the long runs, each experiment's to the end of its
+longest seed).
 
 The figure of merit is the env's own report's: the maze's solved rate over the 12 held-out mazes,
 CarRacing's mean return over the 20 Formula-1 circuits (the vanilla track reported beside it, outside the
 aggregates), the walker's mean return over its six courses.
+
+It builds on the helpers of results/report_common.py, and takes each env's published numbers and
+training curves from results/report_maze.py and results/report_continuous.py.
 """
 
 from __future__ import annotations
@@ -33,8 +36,9 @@ import numpy as np
 from matplotlib.transforms import blended_transform_factory
 
 from envs.evaluation import aggregate
-from results.report import CURVES, EXPERIMENTS, PAPER, cell, colours, fail, plot_training, plt
+from results.report_common import EXPERIMENTS, cell, colours, fail, plot_training, plt
 from results.report_continuous import REPRODUCTIONS, Reproduction, mean_and_se, millions, published_cell
+from results.report_maze import CURVES, PAPER
 
 MILESTONE_FILE = re.compile(r"eval_(\d+)\.json")
 
@@ -54,7 +58,7 @@ class Merit:
     published: dict  # experiment -> {"steps", "mean", "se" (None: not published)}
     source: str  # whose numbers are published: "paper", "reference"
     note: str  # where the published numbers come from, under the tables
-    curves: list  # the training curves' panels, as results.report.plot_training takes them
+    curves: list  # the training curves' panels, as results.report_common.plot_training takes them
     rows: int  # rows of training curves
     figure: str  # the file of figure (a)
 
@@ -115,8 +119,8 @@ def milestone_levels(runs: dict) -> list[str]:
 
 
 def as_milestones(runs: dict, experiments) -> dict:
-    """The finished runs of results.report.load_runs, of the named experiments, in the form of long runs:
-    each one's eval.json as the milestone at its budget."""
+    """The finished runs of results.report_common.load_runs, of the named experiments, in the form of long
+    runs: each one's eval.json as the milestone at its budget."""
     return {name: {seed: {"milestones": {run["args"]["total_timesteps"]: run["eval"]}} for seed, run in runs[name].items()}
             for name in experiments if name in runs}
 
@@ -255,7 +259,7 @@ def plot_over_training(summary: dict, merit: Merit, over: str, path: str) -> Non
 
 def write_report(directory: str, earlier_runs: dict, env: str) -> None:
     """summary.json, a table per milestone and the figures of the long runs in `directory` (DIR/long),
-    beside the earlier campaign's `earlier_runs` (results.report.load_runs of DIR, runs of `env`);
+    beside the earlier campaign's `earlier_runs` (results.report_common.load_runs of DIR, runs of `env`);
     nothing if no run there has a milestone file."""
     runs = load_long_runs(directory)
     if not runs:

@@ -9,7 +9,7 @@ import os
 import pytest
 
 import envs
-from results import report, report_continuous
+from results import report, report_common, report_continuous
 
 F1 = report_continuous.F1_CIRCUITS
 COURSES = report_continuous.WALKER_COURSES
@@ -33,9 +33,9 @@ def fake_run(folder, env: str, returns: dict, teacher: bool, weights: bool = Fal
         for update in range(1, 41):
             writer.writerow({"update": update, "env_steps": 25_000 * update, **{c: 10.0 * update for c in returns_columns},
                              **{c: 1.0 + update / 40 for c in level_columns}, "val_return": 5.0 * update if update % 10 == 0 else ""})
-    image = report.plt.figure(figsize=(3.2, 1.75))
+    image = report_common.plt.figure(figsize=(3.2, 1.75))
     image.savefig(os.path.join(folder, "levels.png"))
-    report.plt.close(image)
+    report_common.plt.close(image)
     if weights:
         open(os.path.join(folder, "agent.pt"), "wb").close()
 
