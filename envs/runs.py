@@ -130,7 +130,8 @@ def record_continuation(run_dir: str, args, steps_done: int) -> None:
         saved = json.load(f)
     now = {name: getattr(args, name) for name in (*BUDGET_PROGRESS, "milestones") if hasattr(args, name)}
     now["milestones"] = list(now["milestones"])
-    if all(saved.get(name) == value for name, value in now.items()):
+    recorded = {"milestones": [], **saved}  # (runs written before milestones existed had none)
+    if all(recorded.get(name) == value for name, value in now.items()):
         return
     final = os.path.join(run_dir, "eval.json")
     if os.path.isfile(final):
