@@ -69,45 +69,45 @@ class Args:
 
     # PPO for all three agents (defaults: the paper's values for --env)
     total_timesteps: int = 250_000_000
-    """protagonist env steps in all; the antagonist plays as many (paper: maze 250M, carracing 5.5M)"""
+    """protagonist env steps in all; the antagonist plays as many"""
     num_envs: int = 32
-    """levels the teacher designs per update, one per env copy (paper: maze 32, carracing and walker 16)"""
+    """levels the teacher designs per update, one per env copy"""
     num_steps: int = 256
-    """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
+    """student steps per copy per rollout; an LSTM trains on these whole sequences"""
     learning_rate: float = 1e-4
-    """Adam learning rate of students and teacher (paper: maze 1e-4, carracing and walker 3e-4)"""
+    """Adam learning rate of students and teacher"""
     gamma: float = 0.995
-    """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
+    """discount factor"""
     gae_lambda: float = 0.95
-    """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
+    """GAE lambda"""
     num_minibatches: int = 1
-    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
+    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise"""
     update_epochs: int = 5
-    """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
+    """PPO epochs per update"""
     student_ent_coef: float = 0.005
-    """entropy bonus of protagonist and antagonist (BC: 0.005, walker 0.001)"""
+    """entropy bonus of protagonist and antagonist"""
     teacher_ent_coef: float = 0.005
-    """entropy bonus of the teacher (BC: 0.005 for maze, 0.05 for maze25 and carracing, 0.01 for walker)"""
+    """entropy bonus of the teacher"""
     bc_coef: float = 0.01
-    """coefficient of the behavioural-cloning KL term, eq. 1 (BC: 0.01 for maze, 0.1 for maze25 and walker, 0.5 for carracing)"""
+    """coefficient of the behavioural-cloning KL term, eq. 1"""
     bc_interval: int = 5
-    """the KL term is added on every K-th update only (BC: 5 for maze, 25 for maze25, 10 for carracing and walker)"""
+    """the KL term is added on every K-th update only"""
     bidirectional: bool = False
     """BiBC: the antagonist also clones the protagonist (default: UniBC, protagonist only)"""
     teacher_update_epochs: int = 5
-    """PPO epochs per update of the teacher (paper: as the students, walker 8)"""
+    """PPO epochs per update of the teacher"""
     teacher_num_minibatches: int = 1
-    """minibatches per epoch of the teacher, of whole level designs for an LSTM teacher (paper: maze 1, carracing and walker 4)"""
+    """minibatches per epoch of the teacher, of whole level designs for an LSTM teacher"""
     teacher_conv_channels: int = 128
-    """maze: channels of the teacher's conv layer (paper: 128; fewer make a lighter, faster teacher)"""
+    """maze: channels of the teacher's conv layer (fewer make a lighter, faster teacher)"""
     normalize_teacher_returns: bool = False
-    """divide the teacher's return (the regret) by its running std (paper: carracing and walker)"""
+    """divide the teacher's return (the regret) by its running std"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Literal["clipped", "mse", "huber"] = "clipped"
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (Huber is the reference's smooth L1, which it uses wherever it does not clip values)"""
     normalize_returns: bool = False
-    """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
+    """divide the students' rewards by a running std of the discounted return"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -121,7 +121,7 @@ class Args:
     eval_interval: int = 50
     """updates between validation runs of the protagonist on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
+    """episodes per held-out level, in validation and in the final evaluation"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random

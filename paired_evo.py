@@ -77,19 +77,19 @@ class Args:
     total_timesteps: int = 250_000_000
     """protagonist env steps in all, training, scoring and edit evaluation; the antagonist plays as many"""
     num_envs: int = 32
-    """levels per update, one per env copy (paper: maze 32, carracing and walker 16)"""
+    """levels per update, one per env copy"""
     num_steps: int = 256
-    """student steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
+    """student steps per copy per rollout; an LSTM trains on these whole sequences"""
     learning_rate: float = 1e-4
-    """Adam learning rate of the students (paper: maze 1e-4, carracing and walker 3e-4)"""
+    """Adam learning rate of the students"""
     gamma: float = 0.995
-    """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
+    """discount factor"""
     gae_lambda: float = 0.95
-    """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
+    """GAE lambda"""
     num_minibatches: int = 1
-    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
+    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise"""
     update_epochs: int = 5
-    """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
+    """PPO epochs per update"""
     student_ent_coef: float = 0.0
     """entropy bonus of protagonist and antagonist (0; HiEnt: 0.005)"""
     bc_coef: float = 0.0
@@ -103,9 +103,9 @@ class Args:
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Literal["clipped", "mse", "huber"] = "clipped"
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (Huber is the reference's smooth L1, which it uses wherever it does not clip values)"""
     normalize_returns: bool = False
-    """divide the students' rewards by a running std of the discounted return (paper: carracing and walker)"""
+    """divide the students' rewards by a running std of the discounted return"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -115,13 +115,13 @@ class Args:
 
     # Robust PLR's level replay
     replay_prob: float = 0.5
-    """probability of a replay update once the buffer is full enough (paper: 0.5; 0.9 with --flexible on the maze)"""
+    """probability of a replay update once the buffer is full enough"""
     level_buffer_size: int = 4000
-    """levels kept in the buffer (paper: maze 4000, walker 1000; carracing 10000)"""
+    """levels kept in the buffer"""
     temperature: float = 0.3
-    """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
+    """rank prioritization temperature T: weight (1/rank)^(1/T)"""
     staleness_coef: float = 0.5
-    """rho, weight of staleness in the replay distribution (paper: 0.5)"""
+    """rho, weight of staleness in the replay distribution"""
     score_function: Literal["regret", "positive_value_loss", "max_mc", "learnability"] = "regret"
     """a level's score: the regret U(A) - U(P) (the paper's), or the protagonist's positive value loss, MaxMC
     (JaxUED's) or learnability (SFL's), as plr.py's --score-function"""
@@ -132,7 +132,7 @@ class Args:
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
     are continuous and cannot be edited)"""
     num_edits: int = 5
-    """random edits per child level (paper: maze 5, walker 3)"""
+    """random edits per child level"""
     edit_levels: Literal["easy", "batch"] = "easy"
     """parents: the easy (lowest-score) half of the replayed batch, two children each; or every replayed level once"""
     min_fill_ratio: float = 0.5
@@ -144,7 +144,7 @@ class Args:
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
+    """episodes per held-out level, in validation and in the final evaluation"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random

@@ -75,29 +75,29 @@ class Args:
 
     # PPO (defaults: the paper's values for --env)
     total_timesteps: int = 250_000_000
-    """env steps to simulate in all, counting those on levels that are only scored (paper: maze 250M, carracing 5.5M)"""
+    """env steps to simulate in all, counting those on levels that are only scored"""
     num_envs: int = 32
-    """parallel env copies, one level each per update (paper: maze 32, carracing and walker 16)"""
+    """parallel env copies, one level each per update"""
     num_steps: int = 256
-    """steps per copy per rollout; an LSTM trains on these whole sequences (paper: maze 256, carracing 125, walker 2000)"""
+    """steps per copy per rollout; an LSTM trains on these whole sequences"""
     learning_rate: float = 1e-4
-    """Adam learning rate (paper: maze 1e-4, carracing and walker 3e-4)"""
+    """Adam learning rate"""
     gamma: float = 0.995
-    """discount factor (paper: maze 0.995, carracing and walker 0.99)"""
+    """discount factor"""
     gae_lambda: float = 0.95
-    """GAE lambda (paper: maze 0.95, carracing and walker 0.9)"""
+    """GAE lambda"""
     num_minibatches: int = 1
-    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise (paper: maze 1, carracing 4, walker 32)"""
+    """minibatches per epoch: of env copies for an LSTM, of single steps otherwise"""
     update_epochs: int = 5
-    """PPO epochs per update (paper: maze 5, carracing 8, walker 5)"""
+    """PPO epochs per update"""
     ent_coef: float = 0.0
-    """entropy bonus coefficient (paper: 0, walker 1e-3)"""
+    """entropy bonus coefficient"""
     clip_coef: float = 0.2
     """PPO's surrogate clipping"""
     value_loss: Literal["clipped", "mse", "huber"] = "clipped"
-    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (paper: maze clipped; carracing and walker huber, the reference's smooth L1 whenever value clipping is off)"""
+    """value loss: clipped as PPO's surrogate, plain squared error, or Huber (Huber is the reference's smooth L1, which it uses wherever it does not clip values)"""
     normalize_returns: bool = False
-    """divide rewards by a running std of the discounted return (paper: carracing and walker)"""
+    """divide rewards by a running std of the discounted return"""
     vf_coef: float = 0.5
     """value loss coefficient"""
     max_grad_norm: float = 0.5
@@ -107,18 +107,18 @@ class Args:
 
     # Prioritized level replay
     replay_prob: float = 0.5
-    """probability of a replay update once the buffer is full enough (paper: 0.5; 0 gives DR)"""
+    """probability of a replay update once the buffer is full enough (0 gives DR)"""
     generator: Literal["random", "sketch"] = "random"
     """new levels: random (the DR generator) or, for carracing's PLR, sketch (12 random sketch cells, the
     reference PLR's random teacher; default: sketch for carracing with replay, random otherwise)"""
     robust: bool = True
     """Robust PLR: no gradient step on new levels, only scoring (--no-robust: plain PLR)"""
     level_buffer_size: int = 4000
-    """levels kept in the buffer (paper: maze 4000, carracing 10000, walker 1000)"""
+    """levels kept in the buffer"""
     temperature: float = 0.3
-    """rank prioritization temperature T: weight (1/rank)^(1/T) (paper: 0.3, walker 0.1)"""
+    """rank prioritization temperature T: weight (1/rank)^(1/T)"""
     staleness_coef: float = 0.3
-    """rho, weight of staleness in the replay distribution (paper: 0.3, walker 0.5)"""
+    """rho, weight of staleness in the replay distribution"""
     min_fill_ratio: float = 0.5
     """replay only once the buffer holds at least this share of its size"""
     score_function: Literal["positive_value_loss", "max_mc", "learnability"] = "positive_value_loss"
@@ -131,7 +131,7 @@ class Args:
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation (paper: 100, carracing 10 per track)"""
+    """episodes per held-out level, in validation and in the final evaluation"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random
