@@ -12,14 +12,14 @@ every replayed level once).
     python accel.py --env walker                    # ACCEL on BipedalWalker terrain, the easy generator
     python accel.py --env maze --score-function learnability  # levels scored as SFL does (run name accel_learnability)
     OMP_NUM_THREADS=1 python accel.py --env maze --seed 2   # beside other runs on the same cores: one thread each
+
+The env (`--env`, any of envs.REGISTRY) is used only through the interface in envs/interface.py, which a
+new env implements; what the script shares with the others (the run directory and checkpoints, the
+evaluation, the networks' parts) is in envs/ too, and envs/training_run.py keeps the run's bookkeeping.
 """
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import json
-import os
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
@@ -27,17 +27,14 @@ from typing import Literal, Optional
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.utils.tensorboard import SummaryWriter
 
 import envs
-from envs.evaluation import evaluate_all, milestones_passed, save_held_out_evaluation, to_torch
-from envs.levels import LevelBuffer
+from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, record_continuation,
-                       resumed_args, save_checkpoint, select_device, student_and_generators, student_class, true_regret_stats)
-from envs.scores import SCORE_FUNCTIONS, highest_returns, level_scores, score_true_regret_correlations
-from envs.video import capture_videos
+from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class,
+                       true_regret_stats)
+from envs.scores import SCORE_FUNCTIONS, episode_means, highest_returns, other_scores, score_true_regret_correlations
+from envs.training_run import TrainingRun
 
 
 # The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
@@ -213,9 +210,95 @@ def resolve_args(args: Args) -> Args:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Prioritized level replay: the replay decision and the parents to edit (the buffer and its replay
-# distribution: envs/levels.py; the level scores: envs/scores.py).
+# Prioritized level replay (Jiang et al. 2021): the level buffer, its replay distribution, the replay
+# decision, and ACCEL's choice of the levels to edit. P = (1 - rho) P_S + rho P_C, P_S by the rank of each level's score, P_C by how many
+# updates ago it was last replayed.
 # ---------------------------------------------------------------------------------------------------
+def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
+    """P_S: proportional to (1 / rank)^(1 / T), rank 1 the highest score."""
+    ranks = np.empty(len(scores))
+    ranks[np.argsort(-scores, kind="stable")] = np.arange(1, len(scores) + 1)
+    weights = (1.0 / ranks) ** (1.0 / temperature)
+    return weights / weights.sum()
+
+
+def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
+    """P_C: proportional to the updates since each level was last sampled (uniform if all fresh)."""
+    staleness = (update - last_sampled).astype(np.float64)
+    total = staleness.sum()
+    return staleness / total if total > 0 else np.full(len(staleness), 1.0 / len(staleness))
+
+
+class LevelBuffer:
+    """The PLR level buffer: levels (one batch of the env's level type, a few arrays), their scores, the
+    update each was last sampled at, and each level's highest return so far (MaxMC's record,
+    envs/scores.py; kept whatever the score, for the diagnostic)."""
+
+    def __init__(self, capacity: int, temperature: float, staleness_coef: float, level_type):
+        self.capacity = capacity
+        self.temperature = temperature
+        self.staleness_coef = staleness_coef
+        self.level_type = level_type
+        self.levels = None
+        self.scores = np.zeros(0)
+        self.last_sampled = np.zeros(0, dtype=np.int64)
+        self.highest_returns = np.zeros(0)
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    def replay_weights(self, update: int) -> np.ndarray:
+        """P = (1 - rho) P_S + rho P_C."""
+        return (1 - self.staleness_coef) * rank_weights(self.scores, self.temperature) + self.staleness_coef * staleness_weights(self.last_sampled, update)
+
+    def sample(self, n: int, update: int, rng: np.random.Generator) -> np.ndarray:
+        """Indices of n levels drawn from P (with replacement); they become fresh."""
+        index = rng.choice(len(self), size=n, p=self.replay_weights(update))
+        self.last_sampled[index] = update
+        return index
+
+    def update_scores(self, index: np.ndarray, scores: np.ndarray) -> None:
+        self.scores[index] = scores
+
+    def raise_highest_returns(self, index: np.ndarray, highest_returns: np.ndarray) -> np.ndarray:
+        """Raise the replayed levels' records to the highest returns their copies just reached (a level
+        drawn twice keeps the higher of its two); -> the records of index, this rollout included."""
+        np.maximum.at(self.highest_returns, index, highest_returns)
+        return self.highest_returns[index]
+
+    def insert(self, levels, scores: np.ndarray, update: int, highest_returns: np.ndarray) -> int:
+        """Offer new levels one by one: each enters if there is room, or replaces the level of lowest
+        replay weight if it scores higher than that level. Returns how many entered."""
+        entered = 0
+        for i in range(len(scores)):
+            if len(self) < self.capacity:
+                self.levels = levels[i] if self.levels is None else type(levels).concat([self.levels, levels[i]])
+                self.scores = np.append(self.scores, scores[i])
+                self.last_sampled = np.append(self.last_sampled, update)
+                self.highest_returns = np.append(self.highest_returns, highest_returns[i])
+                entered += 1
+                continue
+            lowest = int(np.argmin(self.replay_weights(update)))
+            if scores[i] > self.scores[lowest]:
+                self.levels[lowest] = levels[i]
+                self.scores[lowest] = scores[i]
+                self.last_sampled[lowest] = update
+                self.highest_returns[lowest] = highest_returns[i]
+                entered += 1
+        return entered
+
+    def state_dict(self) -> dict:
+        levels = None if self.levels is None else self.levels.state_dict()
+        return {"levels": levels, "scores": self.scores, "last_sampled": self.last_sampled, "highest_returns": self.highest_returns}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.levels = None if state["levels"] is None else self.level_type.from_state_dict(state["levels"])
+        self.scores = np.asarray(state["scores"])
+        self.last_sampled = np.asarray(state["last_sampled"])
+        # (a checkpoint written before the record was kept resumes with the record's start, 0)
+        self.highest_returns = np.asarray(state.get("highest_returns", np.zeros(len(self.scores))))
+
+
 def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> bool:
     """The replay decision: replay with probability p once the buffer is full enough."""
     if buffer_size < args.min_fill_ratio * args.level_buffer_size:
@@ -231,6 +314,25 @@ def select_parents(scores: np.ndarray, edit_levels: str) -> np.ndarray:
         return np.arange(len(scores))
     easy = np.argsort(scores, kind="stable")[: len(scores) // 2]
     return np.concatenate([easy, easy])
+
+
+# ---------------------------------------------------------------------------------------------------
+# The level score: the positive value loss (eq. 2), PLR's estimate of a level's regret.
+# ---------------------------------------------------------------------------------------------------
+def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+    """PLR's score per env copy, the paper's eq. 2: the mean over an episode's steps of max(GAE advantage,
+    0), averaged over the rollout's completed episodes (`episode_means`, which MaxMC shares: a copy that
+    completed none is scored on its unfinished episode)."""
+    return episode_means(advantages.clamp(min=0), dones, final_dones)
+
+
+def level_scores(advantages: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor,
+                 returns_per_level, highest: np.ndarray, solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
+    """Every score of each level of one rollout, name -> [N]: the positive value loss, and MaxMC and
+    learnability (envs/scores.py), which --score-function may choose and the diagnostic logs. highest: each
+    level's record of MaxMC (`highest_returns`, raised by the buffer's for a replayed level)."""
+    return {"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),
+            **other_scores(values, dones, final_dones, returns_per_level, highest, solved_threshold, normalizer)}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -389,7 +491,8 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Ar
 
 
 # ---------------------------------------------------------------------------------------------------
-# Run directory: metrics, checkpoints (atomic), level images, final evaluation.
+# What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
+# envs/training_run.py).
 # ---------------------------------------------------------------------------------------------------
 def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics (and their change from
@@ -402,8 +505,19 @@ def metric_names(env) -> list[str]:
             "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "val_solved_rate", "val_return"]
 
 
-def rng_state(rngs: dict) -> dict:
-    return {name: rng.bit_generator.state for name, rng in rngs.items()}
+def metrics_row(env, buffer: LevelBuffer, levels, played, returns_per_level, scores_of: dict, scores, stats: dict, **columns) -> dict:
+    """One update's row: `columns` (update, steps...), the return and solved rate of the rollout's episodes,
+    the buffer, the levels' complexity, how well the scores track the true regret (where the env knows it)
+    and PPO's statistics."""
+    episode_returns = np.array([r for returns_of_level in returns_per_level for r in returns_of_level])
+    optimal = env.optimal_returns(played)
+    return {**columns, "mean_return": episode_returns.mean() if len(episode_returns) else float("nan"),
+            "solved_rate": np.mean(episode_returns > env.solved_threshold) if len(episode_returns) else float("nan"),
+            "episodes": len(episode_returns), "buffer_size": len(buffer),
+            "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
+            **{k: float(np.mean(v)) for k, v in env.level_metrics(levels).items()},
+            **true_regret_stats(optimal, returns_per_level, scores),
+            **score_true_regret_correlations(optimal, returns_per_level, scores_of), **stats}
 
 
 if __name__ == "__main__":
@@ -417,66 +531,25 @@ if __name__ == "__main__":
     torch.manual_seed(args.seed)
     agent = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
-    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = Rollout(env, args.num_steps, args.num_envs, device)
     normalizer = ReturnNormalizer(args.num_envs, args.gamma) if args.normalize_returns else None
-    metrics = metric_names(env)
-    start_update, global_step, gradient_updates, elapsed = 1, 0, 0, 0.0
+    state = {"agent": agent, "optimizer": optimizer, "buffer": buffer, "normalizer": normalizer,
+             "rng": {"level": level_rng, "env": env.rng}}  # what a checkpoint holds
+    run = TrainingRun(args, __file__, env, agent, metric_names(env), state, device)
+    update, global_step, gradient_updates, elapsed = run.start(update=0, global_step=0, gradient_updates=0, elapsed=0.0)
+    budget = " or ".join(f"{limit} {unit}" for limit, unit in ((args.gradient_updates, "gradient updates"), (args.total_timesteps, "env steps")) if limit)
+    print(f"ACCEL on {args.env}: {budget}, {batch_size} steps per rollout, device {device}, run {run.dir}")
 
     def budget_used() -> float:
         """The share of the run's budget spent: the larger of the steps' and the gradient updates' shares."""
         return max(global_step / args.total_timesteps if args.total_timesteps else 0.0,
                    gradient_updates / args.gradient_updates if args.gradient_updates else 0.0)
 
-    if args.resume:
-        run_dir = args.resume
-        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
-        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
-        agent.load_state_dict(checkpoint["agent"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        buffer.load_state_dict(checkpoint["buffer"], env.Levels)
-        if normalizer is not None:
-            normalizer.load_state_dict(checkpoint["normalizer"])
-        level_rng.bit_generator.state = checkpoint["rng"]["level"]
-        env.rng.bit_generator.state = checkpoint["rng"]["env"]
-        np.random.set_state(checkpoint["numpy_global"])
-        torch.set_rng_state(checkpoint["torch"])
-        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
-            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
-        start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
-        gradient_updates = checkpoint["gradient_updates"]
-        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
-            kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=metrics)
-            writer.writeheader()
-            writer.writerows(kept)
-        record_continuation(run_dir, args, global_step)  # a longer budget or other milestones, if given
-        print(f"resuming {run_dir} at update {start_update}, step {global_step}, gradient update {gradient_updates}")
-    else:
-        run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
-        os.makedirs(run_dir)
-        with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(agent))}, f, indent=2)
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=metrics).writeheader()
-    if args.track:
-        import wandb
-
-        wandb.init(project=args.wandb_project_name, name=os.path.basename(run_dir), config=dataclasses.asdict(args), resume="allow")
-    budget = " or ".join(f"{limit} {unit}" for limit, unit in ((args.gradient_updates, "gradient updates"), (args.total_timesteps, "env steps")) if limit)
-    print(f"ACCEL on {args.env}: {budget}, {batch_size} steps per rollout, device {device}, run {run_dir}")
-
-    metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
-    # TensorBoard events beside metrics.csv; a resumed run drops those logged after its checkpoint, as metrics.csv
-    tensorboard = SummaryWriter(run_dir, purge_step=global_step + 1 if args.resume else None)
-    window_start, window_steps = time.time(), 0
-    update, steps_at_start = start_update - 1, global_step  # (at each update's start; milestones lie after it)
     while budget_used() < 1.0:
         update += 1
-        update_start, steps_at_start = time.time(), global_step
+        update_start = time.time()
+        # The level batch: replayed from the buffer by P, or new random levels.
         replay = decide_replay(len(buffer), args, level_rng)
         if replay:
             replay_index = buffer.sample(args.num_envs, update, level_rng)
@@ -488,15 +561,14 @@ if __name__ == "__main__":
         agent.eval()
         played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
         advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer)
-        episode_returns = [r for returns_of_level in returns_per_level for r in returns_of_level]
-        # All three scores of every level (the diagnostic logs each); --score-function's ranks the buffer.
+        # Every score of every level (the diagnostic logs each); --score-function's ranks the buffer.
         # MaxMC's record of a level: this rollout's highest return, or for a replayed level the buffer's, raised by it.
         highest = highest_returns(returns_per_level)
         highest = buffer.raise_highest_returns(replay_index, highest) if replay else highest
         scores_of = level_scores(advantages, storage.values, storage.dones, storage.final_dones, returns_per_level, highest,
                                  env.solved_threshold, normalizer)
         scores = scores_of[args.score_function]
-        stats, edit_stats = {}, {}
+        stats = {}
         if replay:
             agent.train()
             stats = ppo_update(agent, optimizer, storage, advantages, returns, args, update, device)
@@ -513,78 +585,25 @@ if __name__ == "__main__":
                                         env.solved_threshold, normalizer)[args.score_function]
             entered = buffer.insert(children, child_scores, update, child_highest)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
-            edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
-                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}}
+            stats.update({"children_entered": entered, "child_score": float(child_scores.mean()),
+                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}})
             global_step += batch_size
-            window_steps += batch_size
         else:
             buffer.insert(levels, scores, update, highest)
         global_step += batch_size
-        window_steps += batch_size
         elapsed += time.time() - update_start
 
-        level_stats, optimal = env.level_metrics(levels), env.optimal_returns(played)
-        row = {"update": update, "env_steps": global_step, "gradient_updates": gradient_updates, "sps": round(global_step / elapsed), "replay": int(replay),
-               "mean_return": np.mean(episode_returns) if episode_returns else float("nan"),
-               "solved_rate": np.mean(np.array(episode_returns) > env.solved_threshold) if episode_returns else float("nan"),
-               "episodes": len(episode_returns), "buffer_size": len(buffer),
-               "buffer_mean_score": buffer.scores.mean() if len(buffer) else 0.0, "mean_score": float(scores.mean()),
-               **{k: float(np.mean(v)) for k, v in level_stats.items()},
-               **true_regret_stats(optimal, returns_per_level, scores),
-               **score_true_regret_correlations(optimal, returns_per_level, scores_of), **stats, **edit_stats}
+        row = metrics_row(env, buffer, levels, played, returns_per_level, scores_of, scores, stats, update=update, env_steps=global_step,
+                          gradient_updates=gradient_updates, sps=round(global_step / elapsed), replay=int(replay))
         last_update = budget_used() >= 1.0
-        if update % args.eval_interval == 0 or last_update:
-            agent.eval()
-            validation = evaluate_all(agent, args.env, env.validation_levels, args.eval_episodes, args.seed, device)
-            row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
-            row["val_return"] = np.mean([r["mean_return"] for r in validation.values()])
-            print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
-        reached = milestones_passed(args.milestones, steps_at_start, global_step)
-        if reached and not last_update:  # (the last update's milestones: with the final evaluation below)
-            agent.eval()
-            save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, device,
-                                     [os.path.join(run_dir, f"eval_{steps}.json") for steps in reached])
-        metrics_writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-        metrics_file.flush()
-        log_scalars(tensorboard, row, global_step)
-        if args.track:
-            wandb.log(row, step=global_step)
-
-        if update % args.log_interval == 0:
-            window_sps = window_steps / (time.time() - window_start)
-            used = budget_used()  # 0 while a gradient-update budget has seen no replay yet
-            eta = f"{elapsed * (1.0 - used) / used / 60:.1f} min" if used > 0 else "unknown"
-            print(f"update {update} | steps {global_step} | {window_sps:.0f} steps/s | return {row['mean_return']:.3f} "
-                  f"| solved {row['solved_rate']:.2f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} "
-                  f"| children in {edit_stats.get('children_entered', 0)} | ETA {eta}")
-            window_start, window_steps = time.time(), 0
+        run.end_update(agent, row, last_update, update=update, global_step=global_step, gradient_updates=gradient_updates, elapsed=elapsed)
+        run.print_progress(budget_used(), f"return {row['mean_return']:.3f} | solved {row['solved_rate']:.2f} | buffer {len(buffer)} "
+                           f"score {row['buffer_mean_score']:.4f} | children in {stats.get('children_entered', 0)}")
         if len(buffer) and (update % args.levels_interval == 0 or last_update):
             top = np.argsort(-buffer.scores)[:32]
-            save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
-                            titles=[f"score {s:.3f}" for s in buffer.scores[top]])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
-        if update % args.checkpoint_interval == 0 or last_update:
-            save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
-                "agent": agent.state_dict(), "optimizer": optimizer.state_dict(), "buffer": buffer.state_dict(),
-                "rng": rng_state({"level": level_rng, "env": env.rng}), "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(),
-                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
-                "update": update, "global_step": global_step,
-                "gradient_updates": gradient_updates, "elapsed": elapsed, "normalizer": None if normalizer is None else normalizer.state_dict()})
-    metrics_file.close()
-    tensorboard.close()
+            run.save_levels(env.render(buffer.levels[top]), [f"score {s:.3f}" for s in buffer.scores[top]])
     env.close()
 
-    # Final zero-shot evaluation on every held-out level.
-    agent.eval()
-    at_end = [os.path.join(run_dir, f"eval_{steps}.json") for steps in milestones_passed(args.milestones, steps_at_start, global_step)]
-    results = save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, device, [os.path.join(run_dir, "eval.json"), *at_end])
-    for name, r in results.items():
-        print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
-    if args.capture_video:
-        capture_videos(agent, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
-    save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
-        ("training return", ["mean_return"]), ("solved rate", ["solved_rate", "val_solved_rate"]),
-        ("level complexity", list(env.level_metric_names)), ("PLR scores", ["buffer_mean_score", "mean_score"]),
-        ("policy entropy", ["entropy"])])
-    print(f"done: {run_dir}")
+    run.finish(agent, [("training return", ["mean_return"]), ("solved rate", ["solved_rate", "val_solved_rate"]),
+                       ("level complexity", list(env.level_metric_names)), ("PLR scores", ["buffer_mean_score", "mean_score"]),
+                       ("policy entropy", ["entropy"])])

@@ -13,15 +13,15 @@ blocks 0.1, 25, 0.005, 0.05). Everything else is PAIRED (Algorithm 1).
     python paired_bc.py --env maze --bidirectional  # PAIRED+BiBC+HiEnt
     python paired_bc.py --env maze --student-ent-coef 0 --teacher-ent-coef 0  # PAIRED+UniBC
     OMP_NUM_THREADS=1 python paired_bc.py --env maze --seed 2   # beside other runs on the same cores: one thread each
+
+The env (`--env`, any of envs.REGISTRY) is used only through the interface in envs/interface.py, which a
+new env implements; what the script shares with the others (the run directory and checkpoints, the
+evaluation, the networks' parts) is in envs/ too, and envs/training_run.py keeps the run's bookkeeping.
 """
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import json
 import math
-import os
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
@@ -29,15 +29,12 @@ from typing import Literal, Optional
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.utils.tensorboard import SummaryWriter
 
 import envs
-from envs.evaluation import evaluate_all, milestones_passed, save_held_out_evaluation, to_torch
+from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, record_continuation,
-                       resumed_args, save_checkpoint, select_device, student_and_generators, student_class, true_regret_stats)
-from envs.video import capture_videos
+from envs.runs import check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class, true_regret_stats
+from envs.training_run import Timers, TrainingRun
 
 
 # The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
@@ -401,7 +398,8 @@ def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args
     return gae(storage, torch.zeros(n, device=device), torch.ones(n, device=device), args.gamma, args.gae_lambda)
 
 # ---------------------------------------------------------------------------------------------------
-# Run directory: metrics, checkpoints (atomic), level images, final evaluation.
+# What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
+# envs/training_run.py).
 # ---------------------------------------------------------------------------------------------------
 def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics among them."""
@@ -417,6 +415,19 @@ def episode_mean(returns_per_level, threshold=None) -> float:
     if not flat:  # no episode finished: a gap in the curves, not a return of 0
         return float("nan")
     return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
+
+
+def metrics_row(env, levels, returns_of: dict, level_regret, teacher_storage: Rollout, stats: dict, timers: Timers, **columns) -> dict:
+    """One update's row: `columns` (update, steps...), the students' returns and solved rates, the teacher's
+    return and the regret, PPO's statistics of the three agents, the levels' complexity, how well the
+    regret tracks the true regret (where the env knows it) and the time spent in each part of the update."""
+    return {**columns, "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
+            "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
+            "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
+            "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
+            **{f"{name}_{stat}": stats[name][stat] for name in stats for stat in PPO_STATS},
+            **{k: float(np.mean(v)) for k, v in env.level_metrics(levels).items()},
+            **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret), **timers.columns()}
 
 
 if __name__ == "__main__":
@@ -440,155 +451,58 @@ if __name__ == "__main__":
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in ("protagonist", "antagonist")} if args.normalize_returns else {}
     if args.normalize_teacher_returns:
         normalizers["teacher"] = ReturnNormalizer(args.num_envs, args.gamma)
-    metrics = metric_names(env)
-    start_update, global_step, elapsed = 1, 0, 0.0
+    state = {**agents, **{name + "_optimizer": o for name, o in optimizers.items()}, "env_rng": env.rng,
+             **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
+    run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
+    last_update, global_step, elapsed = run.start(update=0, global_step=0, elapsed=0.0)
+    print(f"PAIRED+{'Bi' if args.bidirectional else 'Uni'}BC on {args.env}: {num_updates} updates of {batch_size} protagonist steps, device {device}, run {run.dir}")
 
-    if args.resume:
-        run_dir = args.resume
-        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
-        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
-        for name in agents:
-            agents[name].load_state_dict(checkpoint[name])
-            optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
-        for name, normalizer in normalizers.items():
-            normalizer.load_state_dict(checkpoint[name + "_normalizer"])
-        env.rng.bit_generator.state = checkpoint["env_rng"]
-        np.random.set_state(checkpoint["numpy_global"])
-        torch.set_rng_state(checkpoint["torch"])
-        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
-            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
-        start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
-        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
-            kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=metrics)
-            writer.writeheader()
-            writer.writerows(kept)
-        record_continuation(run_dir, args, global_step)  # a longer budget or other milestones, if given
-        print(f"resuming {run_dir} at update {start_update}/{num_updates}")
-    else:
-        run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
-        os.makedirs(run_dir)
-        with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(protagonist))}, f, indent=2)
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=metrics).writeheader()
-    if args.track:
-        import wandb
-
-        wandb.init(project=args.wandb_project_name, name=os.path.basename(run_dir), config=dataclasses.asdict(args), resume="allow")
-    print(f"PAIRED+{'Bi' if args.bidirectional else 'Uni'}BC on {args.env}: {num_updates} updates of {batch_size} protagonist steps, device {device}, run {run_dir}")
-
-    metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
-    # TensorBoard events beside metrics.csv; a resumed run drops those logged after its checkpoint, as metrics.csv
-    tensorboard = SummaryWriter(run_dir, purge_step=global_step + 1 if args.resume else None)
-    steps_at_start = global_step  # (at each update's start; milestones lie after it)
-    for update in range(start_update, num_updates + 1):
-        update_start, steps_at_start = time.time(), global_step
+    for update in range(last_update + 1, num_updates + 1):
+        update_start, timers = time.time(), Timers("teacher_rollout", "student_rollouts", "student_updates", "teacher_update")
         for agent in agents.values():
             agent.eval()
         # Algorithm 1, line 3: the teacher generates the levels.
         # Both students play each level from the same start (the maze draws its start direction here).
-        levels = env.draw_starts(teacher_rollout(teacher, mdp, teacher_storage, args, device))
-        time_teacher_rollout = time.time() - update_start
+        with timers("teacher_rollout"):
+            levels = env.draw_starts(teacher_rollout(teacher, mdp, teacher_storage, args, device))
 
         # Lines 4-7: each student collects a rollout on every level and trains by PPO; on every K-th
         # update the protagonist (and with BiBC the antagonist) adds the cloning term (eq. 1).
-        stats, returns_of, times = {}, {}, {"rollouts": 0.0, "updates": 0.0}
+        stats, returns_of = {}, {}
         cloning_update = update % args.bc_interval == 0
         clone_targets = {"protagonist": antagonist if cloning_update else None,
                          "antagonist": protagonist if cloning_update and args.bidirectional else None}
         for name in ("protagonist", "antagonist"):
-            start = time.time()
-            advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device, normalizers.get(name))
-            times["rollouts"] += time.time() - start
-            start = time.time()
-            agents[name].train()
-            stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,
-                                     args.update_epochs, args.num_minibatches, args, update, device,
-                                     clone_target=clone_targets[name], bc_coef=args.bc_coef)
-            times["updates"] += time.time() - start
+            with timers("student_rollouts"):
+                advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device,
+                                                                        normalizers.get(name))
+            with timers("student_updates"):
+                agents[name].train()
+                stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,
+                                         args.update_epochs, args.num_minibatches, args, update, device,
+                                         clone_target=clone_targets[name], bc_coef=args.bc_coef)
 
         # Lines 8-9: the regret is the teacher's reward at its last step; the teacher trains by PPO.
-        start = time.time()
-        level_regret = regret(returns_of["protagonist"], returns_of["antagonist"])
-        advantages, returns = teacher_returns(level_regret, teacher_storage, normalizers.get("teacher"), args, device)
-        teacher.train()
-        stats["teacher"] = ppo_update(teacher, optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef,
-                                      args.teacher_update_epochs, args.teacher_num_minibatches, args, update, device)
-        time_teacher_update = time.time() - start
+        with timers("teacher_update"):
+            level_regret = regret(returns_of["protagonist"], returns_of["antagonist"])
+            advantages, returns = teacher_returns(level_regret, teacher_storage, normalizers.get("teacher"), args, device)
+            teacher.train()
+            stats["teacher"] = ppo_update(teacher, optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef,
+                                          args.teacher_update_epochs, args.teacher_num_minibatches, args, update, device)
         global_step += batch_size
         elapsed += time.time() - update_start
 
-        level_stats = env.level_metrics(levels)
-        row = {"update": update, "env_steps": global_step, "sps": round(global_step / elapsed),
-               "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
-               "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
-               "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
-               "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
-               **{f"{name}_{stat}": stats[name][stat] for name in agents for stat in PPO_STATS},
-               **{k: float(np.mean(v)) for k, v in level_stats.items()},
-               **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret),
-               "time_teacher_rollout": time_teacher_rollout, "time_student_rollouts": times["rollouts"],
-               "time_student_updates": times["updates"], "time_teacher_update": time_teacher_update}
-        for name, target in clone_targets.items():
-            if target is not None:
-                row[f"kl_{name}"] = stats[name]["kl"]
-        if update % args.eval_interval == 0 or update == num_updates:
-            protagonist.eval()
-            validation = evaluate_all(protagonist, args.env, env.validation_levels, args.eval_episodes, args.seed, device)
-            row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
-            row["val_return"] = np.mean([r["mean_return"] for r in validation.values()])
-            print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
-        reached = milestones_passed(args.milestones, steps_at_start, global_step)
-        if reached and update < num_updates:  # (the last update's milestones: with the final evaluation below)
-            protagonist.eval()
-            save_held_out_evaluation(protagonist, args.env, args.eval_episodes, args.seed, device,
-                                     [os.path.join(run_dir, f"eval_{steps}.json") for steps in reached])
-        metrics_writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-        metrics_file.flush()
-        log_scalars(tensorboard, row, global_step)
-        if args.track:
-            wandb.log(row, step=global_step)
-
-        if update % args.log_interval == 0:
-            total = time_teacher_rollout + times["rollouts"] + times["updates"] + time_teacher_update
-            eta = (num_updates - update) * elapsed / update
-            print(f"update {update}/{num_updates} | steps {global_step} | {row['sps']} steps/s | return P {row['protagonist_return']:.3f} "
-                  f"A {row['antagonist_return']:.3f} | regret {row['regret']:.3f} | entropy T {row['teacher_entropy']:.2f} "
-                  f"| {' '.join(f'{k} {row[k]:.1f}' for k in env.level_metric_names[:3])} | time: teacher rollout {time_teacher_rollout / total:.0%}, "
-                  f"student rollouts {times['rollouts'] / total:.0%}, student updates {times['updates'] / total:.0%}, "
-                  f"teacher update {time_teacher_update / total:.0%} | ETA {eta / 60:.1f} min")
+        row = metrics_row(env, levels, returns_of, level_regret, teacher_storage, stats, timers, update=update, env_steps=global_step,
+                          sps=round(global_step / elapsed))
+        row.update({f"kl_{name}": stats[name]["kl"] for name, target in clone_targets.items() if target is not None})
+        run.end_update(protagonist, row, update == num_updates, update=update, global_step=global_step, elapsed=elapsed)
+        run.print_progress(update / num_updates, f"return P {row['protagonist_return']:.3f} A {row['antagonist_return']:.3f} "
+                           f"| regret {row['regret']:.3f} | entropy T {row['teacher_entropy']:.2f} "
+                           f"| {' '.join(f'{k} {row[k]:.1f}' for k in env.level_metric_names[:3])} | time: {timers.shares()}")
         if update % args.levels_interval == 0 or update == num_updates:
-            save_image_grid(env.render(levels), os.path.join(run_dir, f"levels_{update}.png"), titles=[f"regret {r:.3f}" for r in level_regret])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
-        if update % args.checkpoint_interval == 0 or update == num_updates:
-            save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
-                **{name: a.state_dict() for name, a in agents.items()},
-                **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
-                "env_rng": env.rng.bit_generator.state, "numpy_global": np.random.get_state(),
-                "torch": torch.get_rng_state(),
-                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
-                "update": update, "global_step": global_step, "elapsed": elapsed,
-                **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
-    metrics_file.close()
-    tensorboard.close()
+            run.save_levels(env.render(levels), [f"regret {r:.3f}" for r in level_regret])
     env.close()
 
-    # Final zero-shot evaluation of the protagonist on every held-out level.
-    protagonist.eval()
-    at_end = [os.path.join(run_dir, f"eval_{steps}.json") for steps in milestones_passed(args.milestones, steps_at_start, global_step)]
-    results = save_held_out_evaluation(protagonist, args.env, args.eval_episodes, args.seed, device, [os.path.join(run_dir, "eval.json"), *at_end])
-    for name, r in results.items():
-        print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
-    if args.capture_video:
-        capture_videos(protagonist, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
-    save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
-        ("returns", ["protagonist_return", "antagonist_return", "regret"]),
-        ("validation solved rate", ["val_solved_rate"]),
-        ("entropy", ["protagonist_entropy", "antagonist_entropy", "teacher_entropy"]),
-        ("cloning KL", ["kl_protagonist", "kl_antagonist"]),
-        ("level complexity", list(env.level_metric_names))])
-    print(f"done: {run_dir}")
+    run.finish(protagonist, [("returns", ["protagonist_return", "antagonist_return", "regret"]), ("validation solved rate", ["val_solved_rate"]),
+                             ("entropy", ["protagonist_entropy", "antagonist_entropy", "teacher_entropy"]),
+                             ("level complexity", list(env.level_metric_names)), ("cloning KL", ["kl_protagonist", "kl_antagonist"])])

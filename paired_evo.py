@@ -17,14 +17,14 @@ Appendix C ("Combining it all") is one command:
 
 `--score-function` ranks the buffer by the protagonist's positive value loss, MaxMC or learnability
 (envs/scores.py) in place of the regret.
+
+The env (`--env`, any of envs.REGISTRY) is used only through the interface in envs/interface.py, which a
+new env implements; what the script shares with the others (the run directory and checkpoints, the
+evaluation, the networks' parts) is in envs/ too, and envs/training_run.py keeps the run's bookkeeping.
 """
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import json
-import os
 import time
 from dataclasses import dataclass
 from typing import Literal, Optional
@@ -32,18 +32,15 @@ from typing import Literal, Optional
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.utils.tensorboard import SummaryWriter
 
 import envs
-from envs.evaluation import evaluate_all, milestones_passed, save_held_out_evaluation, to_torch
-from envs.levels import LevelBuffer
+from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.render import save_curves, save_image_grid
-from envs.runs import (check_track_file, class_path, fail, log_image, log_scalars, parse_command_line, record_continuation,
-                       resumed_args, save_checkpoint, select_device, student_and_generators, student_class, true_regret_stats)
-from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, highest_returns, level_scores,
+from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class,
+                       true_regret_stats)
+from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, episode_means, highest_returns, other_scores,
                          score_true_regret_correlations)
-from envs.video import capture_videos
+from envs.training_run import TrainingRun
 
 
 # The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
@@ -234,8 +231,97 @@ def resolve_args(args: Args) -> Args:
 
 
 # ---------------------------------------------------------------------------------------------------
-# The level buffer's scores, replay decision and parents (the buffer and its replay distribution, Robust
-# PLR's: envs/levels.py).
+# The level buffer, Robust PLR's (Jiang et al. 2021), with its replay distribution P = (1 - rho) P_S +
+# rho P_C, P_S by the rank of each level's score, P_C by how many updates ago it was last replayed.
+# ---------------------------------------------------------------------------------------------------
+def rank_weights(scores: np.ndarray, temperature: float) -> np.ndarray:
+    """P_S: proportional to (1 / rank)^(1 / T), rank 1 the highest score."""
+    ranks = np.empty(len(scores))
+    ranks[np.argsort(-scores, kind="stable")] = np.arange(1, len(scores) + 1)
+    weights = (1.0 / ranks) ** (1.0 / temperature)
+    return weights / weights.sum()
+
+
+def staleness_weights(last_sampled: np.ndarray, update: int) -> np.ndarray:
+    """P_C: proportional to the updates since each level was last sampled (uniform if all fresh)."""
+    staleness = (update - last_sampled).astype(np.float64)
+    total = staleness.sum()
+    return staleness / total if total > 0 else np.full(len(staleness), 1.0 / len(staleness))
+
+
+class LevelBuffer:
+    """The PLR level buffer: levels (one batch of the env's level type, a few arrays), their scores, the
+    update each was last sampled at, and each level's highest return so far (MaxMC's record,
+    envs/scores.py; kept whatever the score, for the diagnostic)."""
+
+    def __init__(self, capacity: int, temperature: float, staleness_coef: float, level_type):
+        self.capacity = capacity
+        self.temperature = temperature
+        self.staleness_coef = staleness_coef
+        self.level_type = level_type
+        self.levels = None
+        self.scores = np.zeros(0)
+        self.last_sampled = np.zeros(0, dtype=np.int64)
+        self.highest_returns = np.zeros(0)
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    def replay_weights(self, update: int) -> np.ndarray:
+        """P = (1 - rho) P_S + rho P_C."""
+        return (1 - self.staleness_coef) * rank_weights(self.scores, self.temperature) + self.staleness_coef * staleness_weights(self.last_sampled, update)
+
+    def sample(self, n: int, update: int, rng: np.random.Generator) -> np.ndarray:
+        """Indices of n levels drawn from P (with replacement); they become fresh."""
+        index = rng.choice(len(self), size=n, p=self.replay_weights(update))
+        self.last_sampled[index] = update
+        return index
+
+    def update_scores(self, index: np.ndarray, scores: np.ndarray) -> None:
+        self.scores[index] = scores
+
+    def raise_highest_returns(self, index: np.ndarray, highest_returns: np.ndarray) -> np.ndarray:
+        """Raise the replayed levels' records to the highest returns their copies just reached (a level
+        drawn twice keeps the higher of its two); -> the records of index, this rollout included."""
+        np.maximum.at(self.highest_returns, index, highest_returns)
+        return self.highest_returns[index]
+
+    def insert(self, levels, scores: np.ndarray, update: int, highest_returns: np.ndarray) -> int:
+        """Offer new levels one by one: each enters if there is room, or replaces the level of lowest
+        replay weight if it scores higher than that level. Returns how many entered."""
+        entered = 0
+        for i in range(len(scores)):
+            if len(self) < self.capacity:
+                self.levels = levels[i] if self.levels is None else type(levels).concat([self.levels, levels[i]])
+                self.scores = np.append(self.scores, scores[i])
+                self.last_sampled = np.append(self.last_sampled, update)
+                self.highest_returns = np.append(self.highest_returns, highest_returns[i])
+                entered += 1
+                continue
+            lowest = int(np.argmin(self.replay_weights(update)))
+            if scores[i] > self.scores[lowest]:
+                self.levels[lowest] = levels[i]
+                self.scores[lowest] = scores[i]
+                self.last_sampled[lowest] = update
+                self.highest_returns[lowest] = highest_returns[i]
+                entered += 1
+        return entered
+
+    def state_dict(self) -> dict:
+        levels = None if self.levels is None else self.levels.state_dict()
+        return {"levels": levels, "scores": self.scores, "last_sampled": self.last_sampled, "highest_returns": self.highest_returns}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.levels = None if state["levels"] is None else self.level_type.from_state_dict(state["levels"])
+        self.scores = np.asarray(state["scores"])
+        self.last_sampled = np.asarray(state["last_sampled"])
+        # (a checkpoint written before the record was kept resumes with the record's start, 0)
+        self.highest_returns = np.asarray(state.get("highest_returns", np.zeros(len(self.scores))))
+
+
+# ---------------------------------------------------------------------------------------------------
+# The level buffer's scores (the regret of Algorithm 2; or, with --score-function, a curator's score of
+# the protagonist's rollout), the replay decision and the parents to edit.
 # ---------------------------------------------------------------------------------------------------
 def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
     """Algorithm 2's score U(A) - U(P) per level: max antagonist return - mean protagonist return over the
@@ -270,6 +356,22 @@ def select_parents(scores: np.ndarray, edit_levels: str) -> np.ndarray:
         return np.arange(len(scores))
     easy = np.argsort(scores, kind="stable")[: len(scores) // 2]
     return np.concatenate([easy, easy])
+
+
+def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+    """PLR's score per env copy, the paper's eq. 2: the mean over an episode's steps of max(GAE advantage,
+    0), averaged over the rollout's completed episodes (`episode_means`, which MaxMC shares: a copy that
+    completed none is scored on its unfinished episode)."""
+    return episode_means(advantages.clamp(min=0), dones, final_dones)
+
+
+def level_scores(advantages: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor,
+                 returns_per_level, highest: np.ndarray, solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
+    """Every score of each level of one rollout, name -> [N]: the positive value loss, and MaxMC and
+    learnability (envs/scores.py), which --score-function may choose and the diagnostic logs. highest: each
+    level's record of MaxMC (`highest_returns`, raised by the buffer's for a replayed level)."""
+    return {"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),
+            **other_scores(values, dones, final_dones, returns_per_level, highest, solved_threshold, normalizer)}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -437,7 +539,8 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
 
 
 # ---------------------------------------------------------------------------------------------------
-# Run directory: metrics, checkpoints (atomic), level images, final evaluation.
+# What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
+# envs/training_run.py).
 # ---------------------------------------------------------------------------------------------------
 def metric_names(env) -> list[str]:
     """The columns of metrics.csv: one row per update, the env's level metrics (and their change from
@@ -457,6 +560,23 @@ def episode_mean(returns_per_level, threshold=None) -> float:
     return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
 
 
+def metrics_row(env, buffer: LevelBuffer, levels, played, returns_of: dict, regrets, scores_of: dict, scores, stats: dict,
+                **columns) -> dict:
+    """One update's row: `columns` (update, steps...), both students' returns and solved rates on the
+    levels played, the regret, the buffer, the levels' complexity, how well the scores track the true
+    regret (where the env knows it), PPO's statistics and the edits' (`stats`)."""
+    optimal = env.optimal_returns(played)
+    return {**columns, "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
+            "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
+            "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
+            "regret": float(regrets.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
+            **{k: float(np.mean(v)) for k, v in env.level_metrics(levels).items()},
+            **true_regret_stats(optimal, returns_of["protagonist"], scores),
+            **score_true_regret_correlations(optimal, returns_of["protagonist"], scores_of),
+            **{f"{name}_{stat}": stats[name][stat] for name in ("protagonist", "antagonist") if name in stats for stat in PPO_STATS},
+            **{k: v for k, v in stats.items() if k not in ("protagonist", "antagonist")}}
+
+
 if __name__ == "__main__":
     args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
     device = select_device(args.cuda, args.torch_deterministic, args.env)
@@ -472,11 +592,15 @@ if __name__ == "__main__":
     antagonist = student_class(env, args.resume)().to(device)
     students = {"protagonist": protagonist, "antagonist": antagonist}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in students.items()}
-    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in students} if args.normalize_returns else {}
-    metrics = metric_names(env)
-    start_update, global_step, student_steps, gradient_updates, elapsed = 1, 0, 0, 0, 0.0
+    state = {**students, **{name + "_optimizer": o for name, o in optimizers.items()}, "buffer": buffer, "level_rng": level_rng,
+             "env_rng": env.rng, **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
+    run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
+    update, global_step, student_steps, gradient_updates, elapsed = run.start(update=0, global_step=0, student_steps=0, gradient_updates=0,
+                                                                              elapsed=0.0)
+    print(f"{mode} on {args.env}: {args.total_timesteps} protagonist steps, {batch_size} per rollout, device {device}, run {run.dir}")
 
     def protagonist_scores(advantages, returns_per_level, highest) -> dict:
         """Every level score of the protagonist's rollout just played (the antagonist's next overwrites it)."""
@@ -484,56 +608,25 @@ if __name__ == "__main__":
         return level_scores(advantages, storage.values, storage.dones, final_dones, returns_per_level, highest,
                             env.solved_threshold, normalizers.get("protagonist"))
 
-    if args.resume:
-        run_dir = args.resume
-        # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
-        # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
-        checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
-        for name in students:
-            students[name].load_state_dict(checkpoint[name])
-            optimizers[name].load_state_dict(checkpoint[name + "_optimizer"])
-        for name, normalizer in normalizers.items():
-            normalizer.load_state_dict(checkpoint[name + "_normalizer"])
-        buffer.load_state_dict(checkpoint["buffer"], env.Levels)
-        level_rng.bit_generator.state = checkpoint["level_rng"]
-        env.rng.bit_generator.state = checkpoint["env_rng"]
-        np.random.set_state(checkpoint["numpy_global"])
-        torch.set_rng_state(checkpoint["torch"])
-        if checkpoint.get("cuda_rng") and torch.cuda.is_available():
-            torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
-        start_update, global_step, elapsed = checkpoint["update"] + 1, checkpoint["global_step"], checkpoint["elapsed"]
-        student_steps, gradient_updates = checkpoint["student_steps"], checkpoint["gradient_updates"]
-        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:  # drop rows after the checkpoint
-            kept = [row for row in csv.DictReader(f) if int(row["update"]) < start_update]
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=metrics)
-            writer.writeheader()
-            writer.writerows(kept)
-        record_continuation(run_dir, args, global_step)  # a longer budget or other milestones, if given
-        print(f"resuming {run_dir} at update {start_update}, step {global_step}/{args.total_timesteps}")
-    else:
-        run_dir = os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
-        os.makedirs(run_dir)
-        with open(os.path.join(run_dir, "args.json"), "w") as f:
-            json.dump({**dataclasses.asdict(args), "script": os.path.basename(__file__), "student": class_path(type(protagonist))}, f, indent=2)
-        with open(os.path.join(run_dir, "metrics.csv"), "w", newline="") as f:
-            csv.DictWriter(f, fieldnames=metrics).writeheader()
-    if args.track:
-        import wandb
+    def play_and_score(levels):
+        """Both students play `levels` without gradient (Algorithm 2, lines 6-8 and 20-22). -> each one's
+        returns per level, every score of the protagonist's rollout, its MaxMC records, the regrets and
+        the scores that rank the buffer (--score-function's)."""
+        returns_of = {}
+        for name in ("protagonist", "antagonist"):
+            students[name].eval()
+            advantages, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
+            if name == "protagonist":
+                highest = highest_returns(returns_of[name])
+                scores_of = protagonist_scores(advantages, returns_of[name], highest)
+        regrets = score_levels(returns_of["protagonist"], returns_of["antagonist"])
+        return returns_of, scores_of, highest, regrets, {"regret": regrets, **scores_of}[args.score_function]
 
-        wandb.init(project=args.wandb_project_name, name=os.path.basename(run_dir), config=dataclasses.asdict(args), resume="allow")
-    print(f"{mode} on {args.env}: {args.total_timesteps} protagonist steps, {batch_size} per rollout, device {device}, run {run_dir}")
-
-    metrics_file = open(os.path.join(run_dir, "metrics.csv"), "a", newline="")
-    metrics_writer = csv.DictWriter(metrics_file, fieldnames=metrics)
-    # TensorBoard events beside metrics.csv; a resumed run drops those logged after its checkpoint, as metrics.csv
-    tensorboard = SummaryWriter(run_dir, purge_step=global_step + 1 if args.resume else None)
-    update, steps_at_start = start_update - 1, global_step  # (at each update's start; milestones lie after it)
     while global_step < args.total_timesteps:
         update += 1
-        update_start, steps_at_start = time.time(), global_step
+        update_start = time.time()
         replay = decide_replay(len(buffer), args, level_rng)  # Algorithm 2, line 3
-        stats, edit_stats, returns_of = {}, {}, {}
+        stats, returns_of = {}, {}
         if replay:
             # Lines 12-17: both students train on levels replayed from the buffer; on every K-th gradient
             # update the protagonist (and with BiBC the antagonist) adds the cloning term (eq. 1).
@@ -562,102 +655,36 @@ if __name__ == "__main__":
             # gradient, score them by regret and offer them to the buffer.
             parents = select_parents(scores, args.edit_levels)
             children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
-            child_returns, played_children = {}, env.draw_starts(children)
-            for name in ("protagonist", "antagonist"):
-                students[name].eval()
-                child_advantages, _, child_returns[name] = student_rollout(students[name], env, played_children, storage, args, device,
-                                                                           normalizers.get(name))
-                if name == "protagonist":
-                    child_highest = highest_returns(child_returns[name])
-                    child_scores_of = protagonist_scores(child_advantages, child_returns[name], child_highest)
-            child_regrets = score_levels(child_returns["protagonist"], child_returns["antagonist"])
-            child_scores = {"regret": child_regrets, **child_scores_of}[args.score_function]
+            _, _, child_highest, _, child_scores = play_and_score(env.draw_starts(children))
             entered = buffer.insert(children, child_scores, update, child_highest)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])
-            edit_stats = {"children_entered": entered, "child_score": float(child_scores.mean()),
-                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}}
+            stats.update({"children_entered": entered, "child_score": float(child_scores.mean()),
+                          **{f"child_{k}_change": float(np.mean(child_metrics[k].astype(float) - parent_metrics[k])) for k in child_metrics}})
             steps_this_update = 2 * batch_size
         else:
             # Lines 5-10: random levels, played by both students without gradient, scored by regret.
             levels = env.level_generators[args.generator](args.num_envs, level_rng)
             played = env.draw_starts(levels)
-            for name in ("protagonist", "antagonist"):
-                students[name].eval()
-                advantages, _, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
-                if name == "protagonist":
-                    highest = highest_returns(returns_of[name])
-                    scores_of = protagonist_scores(advantages, returns_of[name], highest)
-            regrets = score_levels(returns_of["protagonist"], returns_of["antagonist"])
-            scores = {"regret": regrets, **scores_of}[args.score_function]
+            returns_of, scores_of, highest, regrets, scores = play_and_score(played)
             buffer.insert(levels, scores, update, highest)
             steps_this_update = batch_size
         global_step += steps_this_update
         student_steps += 2 * steps_this_update
         elapsed += time.time() - update_start
 
-        level_stats, optimal = env.level_metrics(levels), env.optimal_returns(played)
-        row = {"update": update, "env_steps": global_step, "student_steps": student_steps, "sps": round(student_steps / elapsed),
-               "replay": int(replay), "protagonist_return": episode_mean(returns_of["protagonist"]),
-               "antagonist_return": episode_mean(returns_of["antagonist"]),
-               "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
-               "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
-               "regret": float(regrets.mean()), "buffer_size": len(buffer), "buffer_mean_score": float(buffer.scores.mean()),
-               **{k: float(np.mean(v)) for k, v in level_stats.items()}, **edit_stats,
-               **true_regret_stats(optimal, returns_of["protagonist"], scores),
-               **score_true_regret_correlations(optimal, returns_of["protagonist"], scores_of),
-               **{f"{name}_{stat}": stats[name][stat] for name in students if name in stats for stat in PPO_STATS},
-               **{k: v for k, v in stats.items() if k.startswith("kl_")}}
+        row = metrics_row(env, buffer, levels, played, returns_of, regrets, scores_of, scores, stats, update=update, env_steps=global_step,
+                          student_steps=student_steps, sps=round(student_steps / elapsed), replay=int(replay))
         last_update = global_step >= args.total_timesteps
-        if update % args.eval_interval == 0 or last_update:
-            protagonist.eval()
-            validation = evaluate_all(protagonist, args.env, env.validation_levels, args.eval_episodes, args.seed, device)
-            row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
-            row["val_return"] = np.mean([r["mean_return"] for r in validation.values()])
-            print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
-        reached = milestones_passed(args.milestones, steps_at_start, global_step)
-        if reached and not last_update:  # (the last update's milestones: with the final evaluation below)
-            protagonist.eval()
-            save_held_out_evaluation(protagonist, args.env, args.eval_episodes, args.seed, device,
-                                     [os.path.join(run_dir, f"eval_{steps}.json") for steps in reached])
-        metrics_writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-        metrics_file.flush()
-        log_scalars(tensorboard, row, global_step)
-        if args.track:
-            wandb.log(row, step=global_step)
-
-        if update % args.log_interval == 0:
-            eta = max(args.total_timesteps - global_step, 0) * elapsed / global_step
-            print(f"update {update} | protagonist steps {global_step} | {row['sps']} student steps/s | return P {row['protagonist_return']:.3f} "
-                  f"A {row['antagonist_return']:.3f} | regret {row['regret']:.3f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} "
-                  f"| children in {edit_stats.get('children_entered', 0)} | ETA {eta / 60:.1f} min")
+        run.end_update(protagonist, row, last_update, update=update, global_step=global_step, student_steps=student_steps,
+                       gradient_updates=gradient_updates, elapsed=elapsed)
+        run.print_progress(global_step / args.total_timesteps, f"return P {row['protagonist_return']:.3f} A {row['antagonist_return']:.3f} "
+                           f"| regret {row['regret']:.3f} | buffer {len(buffer)} score {row['buffer_mean_score']:.4f} "
+                           f"| children in {stats.get('children_entered', 0)}")
         if update % args.levels_interval == 0 or last_update:
             top = np.argsort(-buffer.scores)[:32]
-            save_image_grid(env.render(buffer.levels[top]), os.path.join(run_dir, f"levels_{update}.png"),
-                            titles=[f"{args.score_function} {s:.3f}" for s in buffer.scores[top]])
-            log_image(tensorboard, os.path.join(run_dir, f"levels_{update}.png"), global_step, args.track)
-        if update % args.checkpoint_interval == 0 or last_update:
-            save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
-                **{name: a.state_dict() for name, a in students.items()},
-                **{name + "_optimizer": o.state_dict() for name, o in optimizers.items()},
-                "buffer": buffer.state_dict(), "level_rng": level_rng.bit_generator.state, "env_rng": env.rng.bit_generator.state,
-                "numpy_global": np.random.get_state(), "torch": torch.get_rng_state(),
-                "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None, "update": update,
-                "global_step": global_step, "student_steps": student_steps, "gradient_updates": gradient_updates, "elapsed": elapsed,
-                **{name + "_normalizer": n.state_dict() for name, n in normalizers.items()}})
-    metrics_file.close()
-    tensorboard.close()
+            run.save_levels(env.render(buffer.levels[top]), [f"{args.score_function} {s:.3f}" for s in buffer.scores[top]])
     env.close()
 
-    # Final zero-shot evaluation of the protagonist on every held-out level.
-    protagonist.eval()
-    at_end = [os.path.join(run_dir, f"eval_{steps}.json") for steps in milestones_passed(args.milestones, steps_at_start, global_step)]
-    results = save_held_out_evaluation(protagonist, args.env, args.eval_episodes, args.seed, device, [os.path.join(run_dir, "eval.json"), *at_end])
-    for name, r in results.items():
-        print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
-    if args.capture_video:
-        capture_videos(protagonist, args.env, list(env.test_levels()), args.seed, device, os.path.join(run_dir, "videos"))
-    save_curves(os.path.join(run_dir, "metrics.csv"), os.path.join(run_dir, "curves.png"), [
-        ("returns", ["protagonist_return", "antagonist_return", "regret"]),
-        ("validation solved rate", ["val_solved_rate"]), ("entropy", ["protagonist_entropy", "antagonist_entropy"]),
-        ("level complexity", list(env.level_metric_names)), ("cloning KL", ["kl_protagonist", "kl_antagonist"])])
-    print(f"done: {run_dir}")
+    run.finish(protagonist, [("returns", ["protagonist_return", "antagonist_return", "regret"]),
+                             ("validation solved rate", ["val_solved_rate"]), ("entropy", ["protagonist_entropy", "antagonist_entropy"]),
+                             ("level complexity", list(env.level_metric_names)), ("cloning KL", ["kl_protagonist", "kl_antagonist"])])

@@ -1,4 +1,4 @@
-"""Agent steps per second of the CarRacing env (envs/carracing.py) against gymnasium's CarRacing-v3.
+"""Agent steps per second of the CarRacing env (envs/carracing/env.py) against gymnasium's CarRacing-v3.
 
     python benchmarks/carracing_env.py [--seconds 5] [--copies 16]
 
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from envs.carracing import ACTION_REPEAT, DT, POSITION_ITERATIONS, VELOCITY_ITERATIONS, CarRacingEnv  # noqa: E402
+from envs.carracing.env import ACTION_REPEAT, DT, POSITION_ITERATIONS, VELOCITY_ITERATIONS, CarRacingEnv  # noqa: E402
 
 
 def timed(run_batch, seconds: float) -> tuple[float, int]:
@@ -151,7 +151,7 @@ def main() -> None:
     render_seconds = bench_render_ours(env, min(args.seconds, 3.0))
     whole_view, green_only = bench_grass_test(env, min(args.seconds, 3.0))
     print(f"{'env':<44}{'agent steps':>12}{'steps/s':>10}")
-    print(f"{f'envs/carracing.py, {args.copies} copies':<44}{ours_steps:>12,}{ours_sps:>10,.1f}")
+    print(f"{f'envs/carracing/env.py, {args.copies} copies':<44}{ours_steps:>12,}{ours_sps:>10,.1f}")
     print(f"{'gymnasium CarRacing-v3, 8-frame repeat':<44}{gym_steps:>12,}{gym_sps:>10,.1f}")
     physics_per_step = ACTION_REPEAT / physics_fps
     print(f"physics only: ours {physics_fps:,.0f} frames/s ({physics_per_step * 1e3:.2f} ms per copy per agent step), gymnasium's {gym_physics_fps:,.0f} frames/s")

@@ -1,4 +1,4 @@
-"""Steps per second of the maze env (envs/maze.py) against MiniGrid's own gymnasium env.
+"""Steps per second of the maze env (envs/maze/env.py) against MiniGrid's own gymnasium env.
 
     python benchmarks/maze_env.py [--seconds 3] [--copies 1 32 256 1024]
 
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from envs.maze import TRAIN_MAX_STEPS, MazeEnv  # noqa: E402
+from envs.maze.env import TRAIN_MAX_STEPS, MazeEnv  # noqa: E402
 
 ACTION_BLOCK = 1024  # pre-generated action rows, cycled
 
@@ -120,7 +120,7 @@ def main() -> None:
     for n in args.copies:
         sps, steps = bench_maze(n, args.seconds, args.seed)
         maze_sps[n] = sps
-        print(f"{'maze (envs/maze.py)':<28}{n:>8}{steps:>14,}{sps:>14,.0f}")
+        print(f"{'maze (envs/maze/env.py)':<28}{n:>8}{steps:>14,}{sps:>14,.0f}")
 
     minigrid_sps = float("nan")
     env = make_minigrid_env(args.seed)

@@ -20,8 +20,7 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import envs  # noqa: E402
 import plr  # noqa: E402
-from envs.levels import LevelBuffer  # noqa: E402
-from envs.scores import highest_returns, positive_value_loss  # noqa: E402
+from envs.scores import highest_returns  # noqa: E402
 
 envs.keep_freed_memory()  # as plr.py's main does first
 
@@ -38,7 +37,7 @@ rng = np.random.default_rng(0)
 agent = env.Student()
 optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
 storage = plr.Rollout(env, args.num_steps, args.num_envs, "cpu")
-buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+buffer = plr.LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
 buffer.insert(env.random_levels(args.level_buffer_size, rng), rng.random(args.level_buffer_size), 0, np.zeros(args.level_buffer_size))
 batch = args.num_envs * args.num_steps
 
@@ -57,7 +56,7 @@ def rollout_and_score():
     global advantages, returns
     levels = env.random_levels(args.num_envs, rng)
     advantages, returns, returns_per_level = plr.collect_rollout(agent, env, levels, storage, args, "cpu")
-    scores = positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
+    scores = plr.positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
     buffer.insert(levels, scores, 1, highest_returns(returns_per_level))
 
 

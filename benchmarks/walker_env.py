@@ -1,4 +1,4 @@
-"""Steps per second of the walker env (envs/walker.py, 16 copies) against one gymnasium BipedalWalker-v3.
+"""Steps per second of the walker env (envs/walker/env.py, 16 copies) against one gymnasium BipedalWalker-v3.
 
     python benchmarks/walker_env.py [--seconds 10] [--rounds 10] [--copies 16] [--levels v3|random]
 

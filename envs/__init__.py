@@ -37,10 +37,10 @@ class Registered:
 # settings for an env (its PAPER_DEFAULTS) belong to the algorithm; an env without them runs on the
 # script's defaults.
 REGISTRY: dict[str, Registered] = {
-    "maze": Registered("envs.maze:MazeEnv", {"name": "maze"}),
-    "maze25": Registered("envs.maze:MazeEnv", {"name": "maze25"}),
-    "carracing": Registered("envs.carracing:CarRacingEnv", evaluation_episodes=10),
-    "walker": Registered("envs.walker:WalkerEnv"),
+    "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}),
+    "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}),
+    "carracing": Registered("envs.carracing.env:CarRacingEnv", evaluation_episodes=10),
+    "walker": Registered("envs.walker.env:WalkerEnv"),
 }
 
 

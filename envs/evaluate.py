@@ -135,7 +135,7 @@ def main(argv=None) -> None:
         fail(f"--episodes must be positive, got {options.episodes}")
     track_file = run_args.get("f1_tracks") if env_name == "carracing" else None
     if track_file and track_file != "none":
-        from envs.carracing_tracks import load_f1_tracks
+        from envs.carracing.tracks import load_f1_tracks
 
         try:
             load_f1_tracks(track_file)

@@ -1,7 +1,7 @@
 """The env interface, written down once: what the six algorithm scripts use of an env.
 
-`envs.make(name, num_envs, seed)` returns an `Env`: the maze (envs/maze.py), CarRacing
-(envs/carracing.py) and the walker (envs/walker.py) each implement every member below, and the scripts
+`envs.make(name, num_envs, seed)` returns an `Env`: the maze (envs/maze/env.py), CarRacing
+(envs/carracing/env.py) and the walker (envs/walker/env.py) each implement every member below, and the scripts
 and envs/evaluation.py use nothing else, so a new env that implements these runs under every script once
 registered in envs.REGISTRY.
 `env.teacher()` returns a `TeacherMDP`, PAIRED's adversary environment.

@@ -105,7 +105,7 @@ class RecurrentCategoricalActorCritic(nn.Module):
     heads `self.actor` (hidden -> logits) and `self.critic` (hidden -> 1). That is the whole network,
     and every method below runs it as written: features, LSTM, heads, a torch Categorical.
 
-    A net class may also name a faster, exact way to run it: `FastPath`, a class of envs/fast_paths.py
+    A net class may also name a faster, exact way to run it: `FastPath`, a class of envs/maze/fast_paths.py
     derived from that net's definition. It is looked up in the net's own class only, never inherited,
     so a subclass (a modified net) runs the plain path with no other change; and it serves only nets
     whose modules its `recognises` accepts. Acting (no gradient, no given action) then runs its `act`,

@@ -72,7 +72,7 @@ def check_track_file(args) -> None:
     path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
     if args.env == "carracing" and path:
         if path != "none":
-            from envs.carracing import load_f1_tracks
+            from envs.carracing.tracks import load_f1_tracks
 
             try:
                 load_f1_tracks(path)

@@ -1,9 +1,11 @@
 """Level scores: what ranks a level in a curator's buffer (plr.py, accel.py, paired_evo.py), each computed
 per level from one rollout of the student on it, and how well each tracks the true regret where the env
-knows it (the maze).
+knows it (the maze). The paper's score, PLR's positive value loss, is written in each curator script
+(`positive_value_loss`); this module holds the averaging over episodes it shares with MaxMC, the other
+scores a run may choose with --score-function, and the diagnostic:
 
-- positive_value_loss, PLR's (Jiang et al. 2021, eq. 2; the paper's and dcd's default): the mean over
-  each episode's steps of max(GAE advantage, 0).
+- positive_value_loss (in the scripts), PLR's (Jiang et al. 2021, eq. 2; the paper's and dcd's default):
+  the mean over each episode's steps of max(GAE advantage, 0).
 - max_mc, JaxUED's default (`max_mc` in its utils.py; dcd's `grounded_positive_value_loss` is the
   same idea, clipped at 0): the mean over each episode's steps of R_max - V(s_t), R_max the highest
   return any episode on the level has reached so far, this rollout's included.
@@ -49,11 +51,6 @@ def episode_means(step_values: torch.Tensor, dones: torch.Tensor, final_dones: t
     return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
 
 
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
-    """PLR's score per env copy (eq. 2): the episode mean of max(GAE advantage, 0) (`episode_means`)."""
-    return episode_means(advantages.clamp(min=0), dones, final_dones)
-
-
 def max_mc(values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor, highest_returns: torch.Tensor) -> torch.Tensor:
     """JaxUED's MaxMC per env copy: the episode mean of R_max - V(s_t) (`episode_means`), R_max
     (highest_returns [N]) the level's highest return so far in the units of the values."""
@@ -83,17 +80,16 @@ def ended_at_rollout_end(dones: torch.Tensor, returns_per_level) -> torch.Tensor
     return (completed == starts).float()
 
 
-def level_scores(advantages: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor,
-                 returns_per_level, highest: np.ndarray, solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
-    """Every score of SCORE_FUNCTIONS for each level of one rollout: name -> [N]. highest: each level's
-    record (`highest_returns`, raised by the buffer's for a replayed level), in the env's own rewards.
-    Where rewards are normalized (`normalizer`, CarRacing and the walker), the critic predicts returns
-    of rewards divided by the running std of the discounted return: the record is divided by the same
-    std, so that MaxMC compares return and value in one unit (the rewards' clipping at +-10 aside)."""
+def other_scores(values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor, returns_per_level, highest: np.ndarray,
+                 solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
+    """MaxMC and learnability of each level of one rollout: name -> [N]. highest: each level's record
+    (`highest_returns`, raised by the buffer's for a replayed level), in the env's own rewards. Where
+    rewards are normalized (`normalizer`, CarRacing and the walker), the critic predicts returns of rewards
+    divided by the running std of the discounted return: the record is divided by the same std, so that
+    MaxMC compares return and value in one unit (the rewards' clipping at +-10 aside)."""
     scale = 1.0 if normalizer is None else 1.0 / np.sqrt(normalizer.var + normalizer.epsilon)
     record = torch.as_tensor(highest * scale, dtype=values.dtype, device=values.device)
-    return {"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),
-            "max_mc": max_mc(values, dones, final_dones, record).cpu().numpy(),
+    return {"max_mc": max_mc(values, dones, final_dones, record).cpu().numpy(),
             "learnability": learnability(returns_per_level, solved_threshold)}
 
 

@@ -95,7 +95,7 @@ def maze_frame(env, levels, path: np.ndarray) -> np.ndarray:
 def car_frame(env, levels, view: np.ndarray, path: np.ndarray) -> np.ndarray:
     """The car's view [96, 96, 3] to the left of the top-down track with the path driven so far and
     the car's position (a red dot), both padded to one height."""
-    from envs.carracing_render import draw_trajectory
+    from envs.carracing.render import draw_trajectory
 
     track = env.render_trajectory(levels, path)
     track = draw_trajectory(track, path[-1:], float(env.playfield[0]), colour=CAR_COLOUR, radius=2)

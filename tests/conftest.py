@@ -31,8 +31,8 @@ def restore_torch_settings():
 
 
 def shared_f1_track_file() -> str:
-    """The F1 track data shipped with cleanued (envs/data), or $CLEANUED_F1_TRACKS if set to a file."""
-    from envs.carracing import SHIPPED_F1_TRACKS
+    """The F1 track data shipped with cleanued (envs/carracing/data), or $CLEANUED_F1_TRACKS if set to a file."""
+    from envs.carracing.env import SHIPPED_F1_TRACKS
 
     path = os.environ.get("CLEANUED_F1_TRACKS", "")
     return path if os.path.isfile(path) else SHIPPED_F1_TRACKS

@@ -1,6 +1,6 @@
 """ACCEL's and PAIRED+Evo's own parts on worked examples (accel.py, paired_evo.py): the choice of the
 levels to edit, the regret scores of Algorithm 2 (plain and flexible), the children's way into a full
-level buffer (envs/levels.py, shared by both scripts), and the paper's defaults and bad input per script.
+level buffer (each script's copy of Robust PLR's), and the paper's defaults and bad input per script.
 (The edits themselves, `env.mutate`, are tested in test_envs_maze.py; the buffer's replay distribution in
 test_plr.py.)"""
 
@@ -9,10 +9,11 @@ import pytest
 
 import accel
 import paired_evo
-from envs.levels import LevelBuffer
 from envs.maze import MazeEnv
 
 SCRIPTS = [accel, paired_evo]
+
+LEVELS = MazeEnv("maze", 1, 0).Levels  # the level type a maze buffer holds
 
 
 def same_level(a, i, b, j) -> bool:
@@ -120,7 +121,7 @@ def parents_and_children(parent_scores, seed=0):
 
 
 def test_children_replace_the_lowest_weighted_levels_of_a_full_buffer():
-    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
+    buffer = accel.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0, level_type=LEVELS)
     levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2])
     assert buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS) == 4
     # Children offered one by one (rank weights only, so the lowest weight is the lowest score):
@@ -136,7 +137,7 @@ def test_children_replace_the_lowest_weighted_levels_of_a_full_buffer():
 
 
 def test_a_child_must_beat_not_equal_the_lowest_level():
-    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0)
+    buffer = accel.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.0, level_type=LEVELS)
     levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2], seed=1)
     buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS)
     assert buffer.insert(children, np.array([0.1, 0.1, 0.0, -0.3]), update=2, highest_returns=NO_RETURNS) == 0
@@ -148,7 +149,7 @@ def test_with_staleness_the_lowest_weight_not_the_lowest_score_is_replaced():
     # scores [0.1, 0.2, 0.3, 0.4], T = 1: rank weights (1/4, 1/3, 1/2, 1) / (25/12) = [0.12, 0.16, 0.24, 0.48];
     # rho = 0.5 and slot 0 stale (last sampled at 0, the others at 5; update 5): staleness [1, 0, 0, 0].
     # P = [0.56, 0.08, 0.12, 0.24]: the lowest weight is slot 1 (score 0.2), not slot 0 (score 0.1).
-    buffer = LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.5)
+    buffer = accel.LevelBuffer(capacity=4, temperature=1.0, staleness_coef=0.5, level_type=LEVELS)
     levels, children = parents_and_children([0.1, 0.2, 0.3, 0.4], seed=2)
     buffer.insert(levels, np.array([0.1, 0.2, 0.3, 0.4]), update=5, highest_returns=NO_RETURNS)
     buffer.last_sampled[:] = [0, 5, 5, 5]
@@ -164,7 +165,7 @@ def test_with_staleness_the_lowest_weight_not_the_lowest_score_is_replaced():
 
 
 def test_children_fill_free_room_first():
-    buffer = LevelBuffer(capacity=6, temperature=0.3, staleness_coef=0.5)
+    buffer = accel.LevelBuffer(capacity=6, temperature=0.3, staleness_coef=0.5, level_type=LEVELS)
     levels, children = parents_and_children([0.4, 0.1, 0.3, 0.2], seed=3)
     buffer.insert(levels, np.array([0.4, 0.1, 0.3, 0.2]), update=1, highest_returns=NO_RETURNS)
     # two free slots: the first two children enter whatever their score (slots 4 and 5); then the buffer

@@ -20,6 +20,7 @@ DIFFERENT_BY_DESIGN = {
     "resolve_args": ([["paired.py", "paired_hient.py"]], "each script checks its own options"),
     "paper_args": ([["paired.py", "paired_hient.py"]], "a variant's defaults and run name are its script's"),
     "metric_names": ([["paired.py", "paired_hient.py"]], "each script logs its own columns"),
+    "metrics_row": ([PLR_FAMILY, ["paired.py", "paired_hient.py", "paired_bc.py"]], "each script logs its own columns"),
     "Rollout": ([PLR_FAMILY, PAIRED_FAMILY], "shaped from the env, or from a first observation (three agents)"),
     "minibatch_rows": ([PLR_FAMILY, PAIRED_FAMILY], "PAIRED's serves students and teacher of other sizes"),
     "ppo_update": ([PLR_FAMILY, ["paired.py", "paired_hient.py"]], "paired_bc.py and paired_evo.py add the cloning term"),

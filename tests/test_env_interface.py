@@ -133,9 +133,12 @@ def imports_of(path: str) -> set[str]:
 
 
 def test_the_env_modules_import_each_other_without_a_cycle():
-    folder = os.path.join(ROOT, "envs")
-    modules = {("envs" if name == "__init__.py" else "envs." + name[:-3]): os.path.join(folder, name)
-               for name in os.listdir(folder) if name.endswith(".py")}
+    modules = {}  # every module of the package and its subpackages (envs.maze.env, envs.maze: its __init__.py)
+    for folder, _, names in os.walk(os.path.join(ROOT, "envs")):
+        for name in names:
+            if name.endswith(".py"):
+                parts = os.path.relpath(os.path.join(folder, name[:-3]), ROOT).split(os.sep)
+                modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = os.path.join(folder, name)
     graph = {module: imports_of(path) & set(modules) - {module} for module, path in modules.items()}
 
     def reaches(start: str, target: str, seen: set) -> bool:

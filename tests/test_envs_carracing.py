@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-import envs.carracing as cr
-from envs.carracing import VANILLA, CarRacingEnv, CarRacingStudent, CarRacingTeacher, CarRacingTeacherMDP, designed_levels, fixed_levels
-from envs.carracing_render import (
+import envs.carracing.env as cr
+from envs.carracing.env import VANILLA, CarRacingEnv, CarRacingStudent, CarRacingTeacher, CarRacingTeacherMDP, designed_levels, fixed_levels
+from envs.carracing.render import (
     ABS_FRONT,
     ABS_REAR,
     BACKGROUND,
@@ -30,7 +30,7 @@ from envs.carracing_render import (
     _inside_convex,
     class_map,
 )
-from envs.carracing_tracks import (
+from envs.carracing.tracks import (
     PLAYFIELD,
     SKETCH_RATIO,
     bezier_loop,

@@ -16,16 +16,16 @@ import torch
 from conftest import assert_acting_equals_training
 
 import envs
-from envs.maze import (
+from envs.maze.env import (
     NOISE_DIM,
     MazeEnv,
-    MazeLevels,
     MazeStudent,
     MazeTeacher,
     MazeTeacherMDP,
     level_metrics,
     shortest_path_lengths,
 )
+from envs.maze.levels import MazeLevels
 
 EAST, SOUTH, WEST, NORTH = 0, 1, 2, 3
 LEFT, RIGHT, FORWARD = 0, 1, 2

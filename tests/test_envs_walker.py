@@ -15,9 +15,9 @@ import torch
 from gymnasium.envs.box2d.bipedal_walker import LIDAR_RANGE, BipedalWalker, BipedalWalkerHeuristics
 
 import envs
-from envs.walker import TRAIN_MAX_STEPS, WalkerEnv, WalkerStudent, WalkerTeacher
-from envs.walker_stepping import DesignedBipedalWalker, TerrainLidar, WalkerGroup
-from envs.walker_terrain import (
+from envs.walker.env import TRAIN_MAX_STEPS, WalkerEnv, WalkerStudent, WalkerTeacher
+from envs.walker.stepping import DesignedBipedalWalker, TerrainLidar, WalkerGroup
+from envs.walker.terrain import (
     CUSTOM,
     GYM_FLAT,
     GYM_HARDCORE,

@@ -2,6 +2,7 @@
 one `error:` line and exit status 2 for bad input, before anything is written; a finished run's own
 evaluation repeated. And the GIFs of envs/video.py on every env."""
 
+import glob
 import json
 import os
 import subprocess
@@ -14,6 +15,7 @@ import torch
 
 import envs
 from envs.evaluate import main
+from envs.runs import import_class
 from envs.video import MAX_FRAMES, capture_videos
 
 LEVELS = ["FourRooms", "SimpleCrossingS11N5"]  # the maze's two quickest held-out levels
@@ -60,6 +62,24 @@ def test_a_run_directory_gives_its_env_and_the_paired_protagonist(tmp_path, caps
     assert sorted(os.listdir(out)) == ["eval.json", "eval.png"]
     assert list(json.loads((out / "eval.json").read_text())) == ["FourRooms", "mean"]
     assert "FourRooms" in capsys.readouterr().out
+
+
+def test_the_student_class_committed_runs_record_still_imports():
+    """The committed maze runs record their student as "envs.maze:MazeStudent" (args.json's "student"), which
+    `python -m envs.evaluate` and --resume import through envs.runs.import_class: it is the maze's student,
+    and the runs' agent.pt load into the class each records."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    recorded = set()
+    for path in glob.glob(os.path.join(root, "results", "**", "args.json"), recursive=True):
+        with open(path) as f:
+            student = json.load(f).get("student")
+        weights = os.path.join(os.path.dirname(path), "agent.pt")
+        if student is not None:
+            recorded.add(student)
+            if os.path.exists(weights):
+                import_class(student)().load_state_dict(torch.load(weights, map_location="cpu"))
+    assert "envs.maze:MazeStudent" in recorded
+    assert import_class("envs.maze:MazeStudent") is fresh_student("maze").__class__
 
 
 def bad_input(tmp_path, capsys, argv) -> str:

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import nn
 
-from envs.maze import MazeEnv, MazeStudent, MazeTeacher, MazeTeacherMDP
+from envs.maze.env import MazeEnv, MazeStudent, MazeTeacher, MazeTeacherMDP
 from envs.nets import ResettableLSTM
 
 NUM_COPIES = 6

@@ -1,4 +1,4 @@
-"""The fast paths of envs/fast_paths.py equal the plain nets they are derived from, and serve only the
+"""The fast paths of envs/maze/fast_paths.py equal the plain nets they are derived from, and serve only the
 unmodified nets: a subclass with another conv or hidden size trains and acts on the plain path. Each
 test of a fast path asserts that it ran. (The teacher's sparse training path:
 tests/test_sparse_projection.py; a net edited, or written past its version counters:
@@ -9,9 +9,9 @@ import pytest
 import torch
 from torch import nn
 
-import envs.fast_paths as fast_paths
-from envs.fast_paths import MaskedLSTMRecurrence
-from envs.maze import MazeEnv, MazeStudent, MazeTeacher, MazeTeacherMDP
+import envs.maze.fast_paths as fast_paths
+from envs.maze.env import MazeEnv, MazeStudent, MazeTeacher, MazeTeacherMDP
+from envs.maze.fast_paths import MaskedLSTMRecurrence
 from envs.nets import ResettableLSTM
 
 
@@ -25,7 +25,7 @@ def as_torch(obs: dict) -> dict:
 
 
 def count_calls(monkeypatch, name: str) -> list:
-    """Replaces envs.fast_paths' function `name` (for the monkeypatch's life) with one that calls it and
+    """Replaces envs.maze.fast_paths' function `name` (for the monkeypatch's life) with one that calls it and
     notes in the returned list, per call, whether it returned something (not None)."""
     returned = []
     original = getattr(fast_paths, name)

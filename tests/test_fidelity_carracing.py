@@ -8,10 +8,10 @@ import pytest
 import torch
 from torch.distributions import Beta, Normal, kl_divergence
 
-import envs.carracing as cr
-from envs.carracing import CONTINUOUS, DESIGNED, BetaPolicy, CarRacingEnv, CarRacingStudent, designed_levels
-from envs.carracing_render import GRASS, HULL, MAP_MARGIN, PALETTE, PIXELS_PER_UNIT, ROAD, ViewRenderer, camera_angle, class_map
-from envs.carracing_tracks import PLAYFIELD, SKETCH_RATIO, make_track, well_spaced
+import envs.carracing.env as cr
+from envs.carracing.env import CONTINUOUS, DESIGNED, BetaPolicy, CarRacingEnv, CarRacingStudent, designed_levels
+from envs.carracing.render import GRASS, HULL, MAP_MARGIN, PALETTE, PIXELS_PER_UNIT, ROAD, ViewRenderer, camera_angle, class_map
+from envs.carracing.tracks import PLAYFIELD, SKETCH_RATIO, make_track, well_spaced
 from envs.walker import WalkerStudent
 
 CELLS = np.array([2, 5, 8, 29, 59, 89, 97, 94, 91, 70, 40, 10])  # a ring around the sketch's border

@@ -9,9 +9,8 @@ import torch
 
 import accel
 from envs.evaluation import evaluate
-from envs.levels import HeldOutLevel, LevelBuffer
+from envs.levels import HeldOutLevel
 from envs.maze import MazeEnv
-from envs.scores import positive_value_loss
 
 
 @pytest.fixture(autouse=True)
@@ -32,7 +31,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
     rng = np.random.default_rng(0)
     agent = env.Student()
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
-    buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef)
+    buffer = accel.LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = accel.Rollout(env, args.num_steps, args.num_envs, "cpu")
     # empty rooms with 5 random edits: fixed by the evaluation seed, the same before and after
     edited_rooms = HeldOutLevel(generate=lambda n, level_rng: env.mutate(env.empty_levels(n, level_rng), level_rng, 5), max_steps=100)
@@ -52,7 +51,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
             levels = env.empty_levels(args.num_envs, rng)
         agent.eval()
         advantages, returns, _ = accel.collect_rollout(agent, env, levels, storage, args, "cpu")
-        scores = positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
+        scores = accel.positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
         if not replay:  # Robust PLR: new levels are only scored
             buffer.insert(levels, scores, update, np.zeros(args.num_envs))  # (the record of MaxMC, not used here)
             continue
@@ -63,7 +62,7 @@ def test_accel_from_empty_rooms_learns_to_reach_the_goal():
         children = env.mutate(levels[accel.select_parents(scores, args.edit_levels)], rng, args.num_edits)
         agent.eval()
         child_advantages, _, _ = accel.collect_rollout(agent, env, children, storage, args, "cpu")
-        child_scores = positive_value_loss(child_advantages, storage.dones, storage.final_dones).numpy()
+        child_scores = accel.positive_value_loss(child_advantages, storage.dones, storage.final_dones).numpy()
         children_entered += buffer.insert(children, child_scores, update, np.zeros(args.num_envs))
     after = evaluation()
 

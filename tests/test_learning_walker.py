@@ -28,7 +28,7 @@ import plr
 from envs.evaluation import evaluate
 from envs.levels import HeldOutLevel
 from envs.walker import WalkerEnv
-from envs.walker_terrain import CUSTOM, PARAM_LOW, SEED_BOUND, WalkerLevels
+from envs.walker.terrain import CUSTOM, PARAM_LOW, SEED_BOUND, WalkerLevels
 
 SEED = 0
 UPDATES = 25

@@ -1,11 +1,12 @@
-"""Tests of the 12 held-out test mazes (envs/maze_heldout.py)."""
+"""Tests of the 12 held-out test mazes (envs/maze/held_out.py)."""
 
 import numpy as np
 import pytest
 
 from envs.levels import HeldOutLevel
-from envs.maze import MazeEnv, MazeLevels, shortest_path_lengths
-from envs.maze_heldout import MAZE25_BENCHMARK, held_out_levels
+from envs.maze.env import MazeEnv, shortest_path_lengths
+from envs.maze.held_out import MAZE25_BENCHMARK, held_out_levels
+from envs.maze.levels import MazeLevels
 
 MAZES = held_out_levels()
 FIXED = ("SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3")

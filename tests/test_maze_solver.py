@@ -6,7 +6,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from envs.maze import DIRECTION_VECTORS, FORWARD, LEFT, RIGHT, MazeEnv, MazeLevels, optimal_returns
+from envs.maze.env import DIRECTION_VECTORS, FORWARD, LEFT, RIGHT, MazeEnv, optimal_returns
+from envs.maze.levels import MazeLevels
 
 EAST, SOUTH, WEST, NORTH = 0, 1, 2, 3
 

@@ -15,8 +15,8 @@ import torch
 from test_fast_paths import as_torch, assert_fast_step_equals_plain
 
 from envs.evaluate import main
-from envs.fast_paths import MazeStudentFastPath
 from envs.maze import MazeEnv, MazeStudent
+from envs.maze.fast_paths import MazeStudentFastPath
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "PYTHONPATH": ROOT, "OMP_NUM_THREADS": "1"}
@@ -46,8 +46,8 @@ def fork_of_plr(folder) -> str:
     """plr.py copied as my_plr.py, training SmallStudent instead of the env's student."""
     with open(os.path.join(ROOT, "plr.py")) as f:
         source = f.read()
-    imports = "from envs.video import capture_videos\n"
-    source = source.replace(imports, imports + "from envs.fast_paths import MazeStudentFastPath\nfrom envs.maze import MazeStudent\n")
+    imports = "from envs.training_run import TrainingRun\n"
+    source = source.replace(imports, imports + "from envs.maze.fast_paths import MazeStudentFastPath\nfrom envs.maze import MazeStudent\n")
     source = source.replace("\n\n# The defaults written here", SMALL_STUDENT + "\n\n# The defaults written here")
     building = "agent = student_class(env, args.resume)().to(device)"
     assert building in source

@@ -1,12 +1,15 @@
-"""PLR's parts on small worked examples: the replay distribution, the buffer (envs/levels.py), the decision.
+"""PLR's parts on small worked examples: the replay distribution, the buffer (plr.py's copy; accel.py's and paired_evo.py's
+are the same code, tests/test_duplicated_helpers.py), the decision.
 (The level scores: test_scores.py.)"""
 
 import numpy as np
 import pytest
 
 import plr
-from envs.levels import LevelBuffer, rank_weights, staleness_weights
 from envs.maze import MazeEnv
+from plr import LevelBuffer, rank_weights, staleness_weights
+
+LEVELS = MazeEnv("maze", 1, 0).Levels  # the level type a maze buffer holds
 
 
 def test_rank_weights_with_temperature():
@@ -26,7 +29,7 @@ def make_levels(n, seed=0):
 
 
 def test_replay_weights_mix_rank_and_staleness():
-    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.3)
+    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.3, level_type=LEVELS)
     buffer.insert(make_levels(3), np.array([3.0, 1.0, 2.0]), update=0, highest_returns=np.zeros(3))
     buffer.last_sampled[:] = [0, 5, 10]
     expected = 0.7 * np.array([6, 2, 3]) / 11 + 0.3 * np.array([2 / 3, 1 / 3, 0])
@@ -34,7 +37,7 @@ def test_replay_weights_mix_rank_and_staleness():
 
 
 def test_insertion_and_replacement_in_a_full_buffer():
-    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.0)
+    buffer = LevelBuffer(capacity=3, temperature=1.0, staleness_coef=0.0, level_type=LEVELS)
     levels = make_levels(5)
     assert buffer.insert(levels[np.arange(3)], np.array([0.5, 0.1, 0.3]), update=1, highest_returns=np.zeros(3)) == 3
     assert len(buffer) == 3
@@ -49,7 +52,7 @@ def test_insertion_and_replacement_in_a_full_buffer():
 
 
 def test_sampling_follows_weights_and_refreshes_staleness():
-    buffer = LevelBuffer(capacity=3, temperature=0.1, staleness_coef=0.0)
+    buffer = LevelBuffer(capacity=3, temperature=0.1, staleness_coef=0.0, level_type=LEVELS)
     buffer.insert(make_levels(3), np.array([0.9, 0.1, 0.2]), update=0, highest_returns=np.zeros(3))
     index = buffer.sample(200, update=7, rng=np.random.default_rng(0))
     assert np.mean(index == 0) > 0.95  # (1/rank)^10: the top level dominates
@@ -67,10 +70,10 @@ def test_replay_decision():
 
 
 def test_buffer_state_round_trip():
-    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
+    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3, level_type=LEVELS)
     buffer.insert(make_levels(3), np.array([0.1, 0.2, 0.3]), update=3, highest_returns=np.array([0.0, 0.5, 0.9]))
-    restored = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
-    restored.load_state_dict(buffer.state_dict(), type(buffer.levels))
+    restored = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3, level_type=LEVELS)
+    restored.load_state_dict(buffer.state_dict())
     assert np.array_equal(restored.scores, buffer.scores)
     assert np.array_equal(restored.levels.walls, buffer.levels.walls)
     assert np.array_equal(restored.highest_returns, [0.0, 0.5, 0.9])  # MaxMC's record survives a resume

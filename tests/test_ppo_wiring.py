@@ -23,7 +23,6 @@ import paired_bc
 import paired_evo
 import paired_hient
 import plr
-from envs.scores import positive_value_loss
 
 ALL_SCRIPTS = [plr, accel, paired, paired_hient, paired_bc, paired_evo]
 TEACHER_SCRIPTS = [paired, paired_hient, paired_bc]
@@ -100,7 +99,7 @@ def test_rollout_gae_hand_worked_with_an_episode_end_and_a_bootstrap(script):
     assert torch.allclose(advantages, expected, atol=1e-6)
     assert torch.allclose(returns, expected + VALUE, atol=1e-6)
     assert episode_returns == [[1.0], [2.0]]
-    scores = positive_value_loss(advantages, storage.dones, storage.final_dones)
+    scores = plr.positive_value_loss(advantages, storage.dones, storage.final_dones)
     assert torch.allclose(scores, torch.tensor([0.405, 0.917388]), atol=1e-6)
 
 

@@ -86,13 +86,13 @@ def run(argv, cwd) -> subprocess.CompletedProcess:
 def test_a_copy_with_a_new_flag_and_level_score_checks_trains_and_resumes(tmp_path):
     shutil.copytree(os.path.join(ROOT, "envs"), tmp_path / "envs", ignore=shutil.ignore_patterns("__pycache__"))
     scores = (tmp_path / "envs" / "scores.py").read_text()
-    scores = inserted(scores, "def level_scores(", SCORE, before=True)  # 1. the score
     scores = inserted(scores, '"learnability": "learnability"', ', "squared_value_loss": "svl"')  # 2. its name
-    scores = inserted(scores, '            "learnability": learnability(returns_per_level, solved_threshold)',
-                      ',\n            "squared_value_loss": squared_value_loss(advantages, dones, final_dones).cpu().numpy()')
     (tmp_path / "envs" / "scores.py").write_text(scores)
     with open(os.path.join(ROOT, "plr.py")) as f:
         source = f.read()
+    source = inserted(source, "def level_scores(", SCORE, before=True)  # 1. the score, in the script
+    source = inserted(source, '"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),',
+                      '\n            "squared_value_loss": squared_value_loss(advantages, dones, final_dones).cpu().numpy(),')  # 2. computed
     source = replaced(source, 'Literal["positive_value_loss", "max_mc", "learnability"]',  # 3. offered by --score-function
                       'Literal["positive_value_loss", "max_mc", "learnability", "squared_value_loss"]')
     source = inserted(source, "    min_fill_ratio: float = 0.5\n", FLAG, before=True)  # the flag: a field of Args,

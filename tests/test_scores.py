@@ -1,5 +1,5 @@
-"""The level scores of the curators (envs/scores.py: PLR's positive value loss, JaxUED's MaxMC, SFL's
-learnability) on hand-worked examples, one rollout of each through plr.py's and paired_evo.py's own
+"""The level scores of the curators (PLR's positive value loss, plr.py's copy; JaxUED's MaxMC and SFL's
+learnability, envs/scores.py) on hand-worked examples, one rollout of each through plr.py's and paired_evo.py's own
 rollout code; MaxMC's record of each level's highest return in the buffer (a replayed level's stored
 maximum, the checkpoint); the run names; and the diagnostic every curator logs on the maze, each
 score's rank correlation with the true regret of the same levels."""
@@ -18,11 +18,12 @@ from test_scripts_accel_evo import kill_and_resume, only_run_dir, read_metrics, 
 import accel
 import paired_evo
 import plr
-from envs.levels import LevelBuffer
 from envs.maze import MazeEnv
 from envs.normalize import ReturnNormalizer
-from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, highest_returns, learnability, level_scores, max_mc,
-                         positive_value_loss, score_true_regret_correlations)
+from envs.scores import SCORE_FUNCTIONS, ended_at_rollout_end, highest_returns, learnability, max_mc, score_true_regret_correlations
+from plr import LevelBuffer, level_scores, positive_value_loss
+
+LEVELS = MazeEnv("maze", 1, 0).Levels  # the level type a maze buffer holds
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -152,7 +153,7 @@ def test_a_replayed_level_is_scored_with_its_stored_maximum():
     """Copy 0's level reached 2.0 on an earlier visit; this rollout's best is 1.0: MaxMC measures the values
     against 2.0 (0.85 + 1.0). Copy 1's level had reached only 0.3: its record rises to this rollout's 0.5
     (MaxMC 0.25, as for a new level). Catches a MaxMC that forgets the record or never raises it."""
-    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
+    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3, level_type=LEVELS)
     buffer.insert(make_levels(2), np.array([0.1, 0.2]), update=1, highest_returns=np.array([2.0, 0.3]))
     replayed = np.array([0, 1])
     scores = scores_of_plr_rollout(lambda returns: buffer.raise_highest_returns(replayed, highest_returns(returns)))
@@ -165,7 +166,7 @@ def test_a_replayed_level_is_scored_with_its_stored_maximum():
 def test_a_level_replayed_twice_keeps_its_higher_return():
     """Replay draws with replacement: level 0 plays in copies 0 and 2, which reach 0.9 and 0.4. Both
     copies and the buffer then hold 0.9 (a last-write-wins record would keep 0.4)."""
-    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3)
+    buffer = LevelBuffer(capacity=4, temperature=0.3, staleness_coef=0.3, level_type=LEVELS)
     buffer.insert(make_levels(2), np.array([0.1, 0.2]), update=1, highest_returns=np.array([0.5, 0.3]))
     records = buffer.raise_highest_returns(np.array([0, 1, 0]), highest_returns([[0.9], [0.1], [0.4]]))
     assert records.tolist() == [0.9, 0.3, 0.9]
@@ -178,7 +179,7 @@ def test_the_record_starts_at_zero_and_counts_completed_episodes_only():
 
 
 def test_the_record_travels_with_its_level_into_a_full_buffer():
-    buffer = LevelBuffer(capacity=2, temperature=1.0, staleness_coef=0.0)
+    buffer = LevelBuffer(capacity=2, temperature=1.0, staleness_coef=0.0, level_type=LEVELS)
     levels = make_levels(3)
     buffer.insert(levels[np.arange(2)], np.array([0.5, 0.1]), update=1, highest_returns=np.array([0.8, 0.6]))
     assert buffer.insert(levels[np.array([2])], np.array([0.3]), update=2, highest_returns=np.array([0.2])) == 1

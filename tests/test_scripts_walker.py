@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from envs.walker import WalkerEnv
-from envs.walker_terrain import WalkerLevels
+from envs.walker.terrain import WalkerLevels
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}

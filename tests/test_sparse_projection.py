@@ -1,4 +1,4 @@
-"""The maze teacher's fast path, its sparse input projection (envs/sparse_projection.py), equals the plain
+"""The maze teacher's fast path, its sparse input projection (envs/maze/sparse_projection.py), equals the plain
 teacher: outputs and every gradient on teacher trajectories of both maze settings, acting step by step,
 generic sequences, a float64 gradcheck, and three updates of paired.py."""
 
@@ -14,8 +14,9 @@ import pytest
 import torch
 from torch import nn
 
-from envs.maze import CELL_ENCODING, MazeTeacher, MazeTeacherMDP, empty_grid
-from envs.sparse_projection import MAX_CHANGED_FRACTION, sparse_gate_inputs
+from envs.maze.env import CELL_ENCODING, MazeTeacher, MazeTeacherMDP
+from envs.maze.levels import empty_grid
+from envs.maze.sparse_projection import MAX_CHANGED_FRACTION, sparse_gate_inputs
 from test_fast_paths import count_calls
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -248,7 +249,7 @@ def test_gradcheck_float64_small_grid():
 # path: "fast path calls: {...}" at exit.
 COUNTING_FAST_PATHS = """
 import atexit, collections, runpy, sys
-from envs import fast_paths
+from envs.maze import fast_paths
 calls = collections.Counter()
 def counted(name, function):
     def call(*args, **kwargs):

@@ -463,11 +463,11 @@ def track_metrics(track: Track) -> tuple[float, float, int]:
 
 
 def main(argv=None) -> None:
-    """python -m envs.carracing_tracks convert formula1.py out.npz: the reference's formula1.py (a Python file
+    """python -m envs.carracing.tracks convert formula1.py out.npz: the reference's formula1.py (a Python file
     of RaceTrack(name=..., xy=[...]) definitions, parsed, not run) to an .npz and its _meta.json."""
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 3 or args[0] != "convert":
-        print("usage: python -m envs.carracing_tracks convert formula1.py out.npz", file=sys.stderr)
+        print("usage: python -m envs.carracing.tracks convert formula1.py out.npz", file=sys.stderr)
         sys.exit(2)
     try:
         names = convert_formula1(args[1], args[2])

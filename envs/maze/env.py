@@ -3,7 +3,7 @@
 Everything an algorithm script needs for the maze lives here: the level batch, the student env
 (all copies stepped at once with numpy), the teacher's MDP (PAIRED's adversary), the DR and empty-room
 generators, ACCEL's mutation, level metrics, rendering and the paper's networks. The level batch
-itself is in `envs/maze_levels.py`, the 12 held-out test mazes in `envs/maze_heldout.py`.
+itself is in `envs/maze/levels.py`, the 12 held-out test mazes in `envs/maze/held_out.py`.
 
 Coordinates are (x, y): x the column from the left, y the row from the top, outer wall ring included.
 Directions: 0 east (+x), 1 south (+y), 2 west, 3 north.
@@ -16,10 +16,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from envs.fast_paths import MazeStudentFastPath, MazeTeacherFastPath
 from envs.levels import HeldOutLevels
-from envs.maze_heldout import held_out_levels
-from envs.maze_levels import MazeLevels, empty_grid, random_free_cells
+from envs.maze.fast_paths import MazeStudentFastPath, MazeTeacherFastPath
+from envs.maze.held_out import held_out_levels
+from envs.maze.levels import MazeLevels, empty_grid, random_free_cells
 from envs.nets import RecurrentCategoricalActorCritic, ResettableLSTM, layer_init
 
 EMPTY, WALL, GOAL = 0, 1, 2
@@ -346,7 +346,7 @@ class MazeEnv:
         return optimal_returns(levels, TRAIN_MAX_STEPS)
 
     def test_levels(self) -> HeldOutLevels:
-        """The 12 held-out mazes (`envs.maze_heldout.held_out_levels`)."""
+        """The 12 held-out mazes (`envs.maze.held_out.held_out_levels`)."""
         return held_out_levels()
 
     level_metrics = staticmethod(level_metrics)
@@ -435,7 +435,7 @@ class MazeStudent(RecurrentCategoricalActorCritic):
     no arguments, so other sizes belong in a subclass's defaults.
 
     To try another network, subclass it: a subclass runs exactly what it defines. This class itself
-    acts through a faster path derived from it, at any sizes (envs/fast_paths.py), which
+    acts through a faster path derived from it, at any sizes (envs/maze/fast_paths.py), which
     tests/test_fast_paths.py checks against it."""
 
     FastPath = MazeStudentFastPath
@@ -463,7 +463,7 @@ class MazeTeacher(RecurrentCategoricalActorCritic):
     the paper's 128 gives a lighter teacher (its LSTM input shrinks in proportion).
 
     Its LSTM's input projection has 22M weights at 128 channels. This class acts and trains through a
-    faster path derived from it (envs/fast_paths.py): a teacher step changes at most one cell of the
+    faster path derived from it (envs/maze/fast_paths.py): a teacher step changes at most one cell of the
     grid, so only the conv windows over changed cells are projected. A subclass runs exactly what it
     defines."""
 

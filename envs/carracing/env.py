@@ -2,16 +2,16 @@
 
 Everything an algorithm script needs: the level batch, the student env (one Box2D world per copy, the
 physics stepped in a loop over copies, the views rendered for all copies at once by
-envs/carracing_render.py), the teacher's MDP, the level generators (DR's and PLR's), mutation, level
+envs/carracing/render.py), the teacher's MDP, the level generators (DR's and PLR's), mutation, level
 metrics, level images, the held-out tracks (F1 file, vanilla, built-ins; geometry in
-envs/carracing_tracks.py) and the paper's networks.
+envs/carracing/tracks.py) and the paper's networks.
 
 Student observation: {"image": uint8 [N, 12, 96, 96]}, channels first: four RGB frames stacked oldest
 first (channels 3k..3k+2 are frame k, frame 3 the newest); an episode's first observation repeats its
 first frame four times (as the reference's frame stack). Action: Box(0, 1, (3,)), the Beta sample,
 mapped to steer = 2 a0 - 1, gas = a1, brake = a2, held for 8 physics frames (action repeat 8).
 
-    python -m envs.carracing_tracks convert formula1.py out.npz   # the reference's track file to our format
+    python -m envs.carracing.tracks convert formula1.py out.npz   # the reference's track file to our format
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from gymnasium.envs.box2d.car_dynamics import Car
 from torch import nn
 from torch.distributions import Beta, Categorical, Independent
 
-from envs.carracing_render import STATE_SIZE, ViewRenderer, class_map, draw_trajectory, level_image, track_quads
-from envs.carracing_tracks import (
+from envs.carracing.render import STATE_SIZE, ViewRenderer, class_map, draw_trajectory, level_image, track_quads
+from envs.carracing.tracks import (
     BUILTIN_FRAME_LIMITS,
     BUILTIN_TRACKS,
     FPS,
@@ -68,7 +68,7 @@ EARLY_STOP_WINDOW = 100
 EARLY_STOP_MEAN = -0.1
 F1_ENV_VAR = "CLEANUED_F1_TRACKS"
 # The paper's 20 held-out Formula-1 circuits (and LagunaSeca), from the reference implementation: their
-# licence (CC BY-NC 4.0) is in envs/data/LICENSE.md.
+# licence (CC BY-NC 4.0) is in envs/carracing/data/LICENSE.md.
 SHIPPED_F1_TRACKS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "f1_tracks.npz")
 NO_F1_TRACKS = "none"  # as the track file: evaluate on vanilla and the built-in tracks only (quick runs)
 
@@ -171,7 +171,7 @@ def held_out_levels(f1_tracks: dict | None) -> HeldOutLevels:
 class CarRacingTeacherMDP:
     """PAIRED's adversary for CarRacing over n tracks at once. Action a in [0, 100) is sketch cell
     (i, j) = (a % 10, a // 10), stored at sketch[j, i], so the flattened sketch is indexed by a (the
-    same convention as envs.carracing_tracks.cell_points). A used cell may not be chosen again (the
+    same convention as envs.carracing.tracks.cell_points). A used cell may not be chosen again (the
     Teacher network masks them): choosing one raises ValueError. Observation: sketch float32
     [n, 10, 10] (1 where a point was placed), time int64 [n] (0..12) and noise float32 [n, 4] U[0, 1)
     drawn afresh from env.rng at every step."""
@@ -384,7 +384,7 @@ class CarRacingEnv:
     def random_levels(self, n: int, rng: np.random.Generator) -> CarRacingLevels:
         """The DR generator, the reference implementation's (dcd) random track (CarRacingBezier.reset
         without control points): 12 continuous control points uniform in [0, 333.3)^2, redrawn while
-        crowded (carracing_tracks.random_control_points), through which the Bezier loop runs."""
+        crowded (envs.carracing.tracks.random_control_points), through which the Bezier loop runs."""
         return continuous_levels(random_control_points(n, rng))
 
     def random_sketch_levels(self, n: int, rng: np.random.Generator) -> CarRacingLevels:

@@ -3,7 +3,7 @@
 Everything an algorithm script needs for the walker: the student env (`WalkerEnv`), the teacher's MDP
 (PAIRED's adversary), the DR and "easy" generators, ACCEL's mutation, level metrics, rendering, the
 held-out courses and the paper's networks. A level's parameters and its terrain are in
-envs/walker_terrain.py; gymnasium's step for many copies at once is in envs/walker_stepping.py.
+envs/walker/terrain.py; gymnasium's step for many copies at once is in envs/walker/stepping.py.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from torch.distributions import Independent, Normal
 
 from envs.levels import HeldOutLevel, HeldOutLevels
 from envs.nets import FeedForwardActorCritic, layer_init
-from envs.walker_stepping import ACTION_DIM, OBS_DIM, DesignedBipedalWalker, WalkerGroup
-from envs.walker_terrain import (
+from envs.walker.stepping import ACTION_DIM, OBS_DIM, DesignedBipedalWalker, WalkerGroup
+from envs.walker.terrain import (
     CUSTOM,
     EASY_PARAMS,
     EASY_ROUGHNESS_HIGH,

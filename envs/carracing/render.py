@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from envs.carracing_tracks import BORDER, TRACK_WIDTH, Track
+from envs.carracing.tracks import BORDER, TRACK_WIDTH, Track
 
 STATE_SIZE = 96
 WINDOW_W, WINDOW_H = 1000, 800  # gymnasium's surface, scaled to 96x96

@@ -1,4 +1,4 @@
-"""Faster, exact ways to run the maze's two networks, derived from their plain definitions in envs/maze.py.
+"""Faster, exact ways to run the maze's two networks, derived from their plain definitions in envs/maze/env.py.
 
 `MazeStudent` and `MazeTeacher` are written plainly (nn.Conv2d, nn.Linear, an LSTM with episode resets,
 torch.distributions.Categorical): that is their definition, and what any modified net runs. This module
@@ -31,12 +31,12 @@ linear. The student's conv over its 5x5 view is a linear map from 75 inputs to 1
 LSTM's input weights plus the LSTM's biases a [4, 4H] table of gate inputs, one row per direction. The
 teacher's grid changes in at most one cell per step, so the conv features' share of its gates is
 carried from step to step and only the conv windows over a changed cell are recomputed
-(envs/sparse_projection.py); its time embedding becomes a table of gate inputs too. The action is drawn
+(envs/maze/sparse_projection.py); its time embedding becomes a table of gate inputs too. The action is drawn
 as the plain path's Categorical.sample draws it, with torch.multinomial on the same probabilities, so
 both paths draw the same actions from the same random stream.
 
 **Training** the teacher (a whole rollout, T > 1) computes the LSTM's input projection from the changed
-cells only (envs/sparse_projection.py), then the recurrence with `MaskedLSTMRecurrence`. The student
+cells only (envs/maze/sparse_projection.py), then the recurrence with `MaskedLSTMRecurrence`. The student
 trains on the plain path: at a training batch its conv costs what the folded matrix does.
 """
 
@@ -49,8 +49,8 @@ from torch import nn
 from torch.distributions import Categorical
 from torch.optim.optimizer import register_optimizer_step_post_hook
 
+from envs.maze.sparse_projection import RunningConvGates, sparse_gate_inputs
 from envs.nets import ResettableLSTM
-from envs.sparse_projection import RunningConvGates, sparse_gate_inputs
 
 # The check of derived weights runs on the first CHECK_COPIES copies of a step, as they are and again with
 # CHECK_CELLS cells of each image set to random values and their episode starts flipped. An output may

@@ -2,7 +2,7 @@
 
 The walker, its motors, lidar, 24-d observation, 4-d action and reward are gymnasium's own
 (`gymnasium.envs.box2d.bipedal_walker.BipedalWalker`); `DesignedBipedalWalker` subclasses it and
-replaces only the terrain generator (envs/walker_terrain.py builds the course of a CUSTOM level).
+replaces only the terrain generator (envs/walker/terrain.py builds the course of a CUSTOM level).
 Everything random in an episode (terrain, clouds, the initial push of the hull) is drawn from the
 level's terrain seed (gymnasium's `reset(seed=...)`) and every episode starts in a fresh Box2D world,
 so a level replays identically at every restart.
@@ -20,7 +20,7 @@ import Box2D
 import numpy as np
 from gymnasium.envs.box2d import bipedal_walker as gym_walker
 
-from envs.walker_terrain import CUSTOM, EASY_PARAMS, GYM_HARDCORE, TERRAIN_GRASS, TERRAIN_LENGTH, TERRAIN_STEP, Feature, build_designed_terrain
+from envs.walker.terrain import CUSTOM, EASY_PARAMS, GYM_HARDCORE, TERRAIN_GRASS, TERRAIN_LENGTH, TERRAIN_STEP, Feature, build_designed_terrain
 
 OBS_DIM, ACTION_DIM = 24, 4
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from envs.levels import HeldOutLevel, HeldOutLevels
-from envs.maze_levels import MazeLevels, empty_grid, random_free_cells
+from envs.maze.levels import MazeLevels, empty_grid, random_free_cells
 
 EAST = 0
 

@@ -1,5 +1,5 @@
-"""The maze's level batch and the grid helpers its generators share: what envs/maze.py (the env, the
-teacher, DR, mutation) and envs/maze_heldout.py (the held-out mazes) both build levels from.
+"""The maze's level batch and the grid helpers its generators share: what envs/maze/env.py (the env, the
+teacher, DR, mutation) and envs/maze/held_out.py (the held-out mazes) both build levels from.
 
 Coordinates are (x, y): x the column from the left, y the row from the top, outer wall ring included.
 """

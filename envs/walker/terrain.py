@@ -3,7 +3,7 @@
 A level is 8 numbers (POET's parameters, `PARAM_NAMES`), a terrain seed and a course kind: `CUSTOM`
 courses are built from the parameters by `build_designed_terrain`, POET's generator in the structure of
 gymnasium's hardcore one; `GYM_FLAT` and `GYM_HARDCORE` are gymnasium's own BipedalWalker-v3 /
-BipedalWalkerHardcore-v3 generators, unchanged (held-out set). envs/walker_stepping.py plays them.
+BipedalWalkerHardcore-v3 generators, unchanged (held-out set). envs/walker/stepping.py plays them.
 """
 
 from __future__ import annotations
