@@ -148,15 +148,17 @@ def time_script(report_path: str, updates: str, path: str, *argv: str) -> None:
         for name in totals:
             if name in namespace:
                 namespace[name] = timed(name, namespace[name])
-        log_scalars = namespace["log_scalars"]  # called once per update, after the update's row is written
 
-        def record_update(tensorboard, row, step):
-            log_scalars(tensorboard, row, step)
-            records.append({"update": row["update"], "elapsed": namespace["elapsed"], "protagonist_steps": row["env_steps"],
-                            "replay": row.get("replay"), **totals})
-            if len(records) == int(updates):
-                raise StopRun
-        namespace["log_scalars"] = record_update
+        class TimedRun(namespace["TrainingRun"]):
+            """The script's run, recording each update once its row is written (end_update, once per update)."""
+
+            def end_update(self, agent, row, last, **counters):
+                super().end_update(agent, row, last, **counters)
+                records.append({"update": row["update"], "elapsed": counters["elapsed"], "protagonist_steps": row["env_steps"],
+                                "replay": row.get("replay"), **totals})
+                if len(records) == int(updates):
+                    raise StopRun
+        namespace["TrainingRun"] = TimedRun
 
     namespace = run_script(path, list(argv), instrument)
     peak = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_initialized() else None

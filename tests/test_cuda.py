@@ -248,16 +248,18 @@ def test_every_tensor_of_an_update_is_on_the_gpu(name, tmp_path, monkeypatch):
         for function_name in (*ROLLOUT_FUNCTIONS, UPDATE_FUNCTION):
             if function_name in namespace:
                 namespace[function_name] = watched(function_name, namespace[function_name])
-        log_scalars = namespace["log_scalars"]
 
-        def stop_once_trained(tensorboard, row, step):
-            log_scalars(tensorboard, row, step)
-            if UPDATE_FUNCTION in calls:
-                raise StopRun
-        namespace["log_scalars"] = stop_once_trained
+        class StoppedRun(namespace["TrainingRun"]):
+            """The script's run, stopped after the first update that trained, once its row is written."""
+
+            def end_update(self, agent, row, last, **counters):
+                super().end_update(agent, row, last, **counters)
+                if UPDATE_FUNCTION in calls:
+                    raise StopRun
+        namespace["TrainingRun"] = StoppedRun
 
     namespace = run_script(os.path.join(ROOT, CONFIGS[name][0]), arguments(name, UPDATES), instrument)
-    namespace["tensorboard"].close()  # its events written here, before the test leaves this directory
+    namespace["run"].tensorboard.close()  # its events written here, before the test leaves this directory
     assert str(namespace["device"]) == DEVICE
     assert UPDATE_FUNCTION in calls and any(function in calls for function in ROLLOUT_FUNCTIONS), calls
     assert not watch.found, "ops off the GPU: " + "; ".join(f"{op} at {where}" for op, where in watch.found.items())
