@@ -36,7 +36,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class,
+from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, episode_means, highest_returns, other_scores,
                          score_true_regret_correlations)
@@ -56,6 +56,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    device_rollouts: bool = True
+    """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -410,10 +412,12 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`)."""
+    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
+        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
@@ -595,6 +599,8 @@ if __name__ == "__main__":
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in students} if args.normalize_returns else {}
+    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
+    on_device = {name: rollouts_on_device(env, student, storage, args, device, normalizers.get(name)) for name, student in students.items()}
     state = {**students, **{name + "_optimizer": o for name, o in optimizers.items()}, "buffer": buffer, "level_rng": level_rng,
              "env_rng": env.rng, **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -615,7 +621,7 @@ if __name__ == "__main__":
         returns_of = {}
         for name in ("protagonist", "antagonist"):
             students[name].eval()
-            advantages, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name))
+            advantages, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name), on_device[name])
             if name == "protagonist":
                 highest = highest_returns(returns_of[name])
                 scores_of = protagonist_scores(advantages, returns_of[name], highest)
@@ -639,7 +645,7 @@ if __name__ == "__main__":
                              "antagonist": protagonist if cloning_update and args.bidirectional else None}
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name))
+                advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name), on_device[name])
                 if name == "protagonist":
                     highest = buffer.raise_highest_returns(replay_index, highest_returns(returns_of[name]))
                     scores_of = protagonist_scores(advantages, returns_of[name], highest)

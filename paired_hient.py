@@ -28,7 +28,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class, true_regret_stats
+from envs.runs import check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class, true_regret_stats
 from envs.training_run import Timers, TrainingRun
 
 
@@ -45,6 +45,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    device_rollouts: bool = True
+    """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -210,10 +212,12 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`)."""
+    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
+        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
@@ -419,6 +423,8 @@ if __name__ == "__main__":
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in ("protagonist", "antagonist")} if args.normalize_returns else {}
     if args.normalize_teacher_returns:
         normalizers["teacher"] = ReturnNormalizer(args.num_envs, args.gamma)
+    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
+    on_device = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name)) for name in ("protagonist", "antagonist")}
     state = {**agents, **{name + "_optimizer": o for name, o in optimizers.items()}, "env_rng": env.rng,
              **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -439,7 +445,7 @@ if __name__ == "__main__":
         for name in ("protagonist", "antagonist"):
             with timers("student_rollouts"):
                 advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device,
-                                                                        normalizers.get(name))
+                                                                        normalizers.get(name), on_device[name])
             with timers("student_updates"):
                 agents[name].train()
                 stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,

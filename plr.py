@@ -37,7 +37,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, select_device, student_and_generators, student_class,
+from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import SCORE_FUNCTIONS, episode_means, highest_returns, other_scores, score_true_regret_correlations
 from envs.training_run import TrainingRun
@@ -56,6 +56,8 @@ class Args:
     """seed of every random number generator: same seed, same CPU, same result"""
     cuda: bool = True
     """use a GPU when one is available"""
+    device_rollouts: bool = True
+    """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -347,12 +349,14 @@ class Rollout:
 
 
 @torch.no_grad()
-def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
+def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`).
     Each step's data are kept in numpy arrays and lists and moved into `storage` once at the end: at
     a maze step's size, a dozen small tensor copies per step would cost more than the env step."""
+    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
+        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
@@ -525,6 +529,8 @@ if __name__ == "__main__":
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = Rollout(env, args.num_steps, args.num_envs, device)
     normalizer = ReturnNormalizer(args.num_envs, args.gamma) if args.normalize_returns else None
+    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
+    on_device = rollouts_on_device(env, agent, storage, args, device, normalizer)
     state = {"agent": agent, "optimizer": optimizer, "buffer": buffer, "normalizer": normalizer,
              "rng": {"level": level_rng, "env": env.rng}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, agent, metric_names(env), state, device)
@@ -543,7 +549,7 @@ if __name__ == "__main__":
 
         agent.eval()
         played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
-        advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer)
+        advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer, on_device)
         # Every score of every level (the diagnostic logs each); --score-function's ranks the buffer.
         # MaxMC's record of a level: this rollout's highest return, or for a replayed level the buffer's, raised by it.
         highest = highest_returns(returns_per_level)

@@ -3,6 +3,8 @@ the same machine's CPU. Writes one JSON file and prints a short log.
 
     python benchmarks/gpu_check.py --out gpu_check.json          # about 8 minutes on an H200 with 16 cores
     python benchmarks/gpu_check.py --quick --out /tmp/check.json  # tiny runs only: checks that every run works
+    python benchmarks/gpu_check.py --out maze.json --only plr.py 'plr.py --replay-prob 0 (DR)' accel.py paired.py \
+        --tests tests/test_maze_on_device.py tests/test_device.py    # the maze's device path: its speed and tests
 
 It runs, one at a time, the GPU speed runs, the CUDA tests, then the CPU speed runs (the least new if the
 time runs out), and rewrites the JSON after each, so a run cut short keeps what it measured. On an H200
@@ -11,10 +13,13 @@ with 16 cores the GPU runs took 152 s, the tests 144 s, and the CPU runs about 3
 The JSON holds:
 - `machine`: Python, torch, CUDA and cuDNN versions, the GPU's name and memory, the CPU and its core count;
 - `tests`: the outcome of each test of tests/test_cuda.py (resume on the GPU, --torch-deterministic, checkpoints
-  moved between GPU and CPU, every tensor of an update on the GPU) and tests/test_device.py (the GPU settings,
-  observations copied through pinned memory), run by pytest in a child process;
+  moved between GPU and CPU, every tensor of an update on the GPU), tests/test_device.py (the GPU settings,
+  observations copied through pinned memory) and tests/test_maze_on_device.py (the maze's rollout as one CUDA
+  graph: captured, equal to the numpy env and the plain net, no host sync, a seed repeats, replays draw
+  fresh actions), run by pytest in a child process;
 - `speed`: one entry per run and device (`cuda`, then `cpu` with the scripts' default threads): the scripts on
-  the maze at the paper's settings for 3 updates each, the headline `paired_bc.py --bidirectional --env
+  the maze at the paper's settings for 3 updates each (and DR: plr.py --replay-prob 0), on the GPU also
+  with --no-device-rollouts for DR, Robust PLR, ACCEL and PAIRED (the numpy env on the host), the headline `paired_bc.py --bidirectional --env
   carracing` for 3 and `accel.py --env walker` for 2, each with
   - `protagonist_steps_per_s`: the steps of the script's `env_steps` column (the protagonist's in the PAIRED
     scripts; plr.py and accel.py count every step their one student plays, scoring and edit evaluation
@@ -71,6 +76,7 @@ QUICK_FLAGS = {"maze": ["--num-envs", "4", "--num-steps", "16", "--update-epochs
 # (label, script, env, updates, flags, flags at the paper's settings, flags of the tiny --quick run)
 RUNS = [
     ("plr.py", "plr.py", "maze", 3, [], ["--level-buffer-size", "64"], ["--level-buffer-size", "8"]),
+    ("plr.py --replay-prob 0 (DR)", "plr.py", "maze", 3, ["--replay-prob", "0"], [], []),
     ("accel.py", "accel.py", "maze", 3, [], ["--level-buffer-size", "64"], ["--level-buffer-size", "8"]),
     ("paired.py", "paired.py", "maze", 3, [], [], ["--teacher-conv-channels", "4"]),
     ("paired_hient.py", "paired_hient.py", "maze", 3, [], [], ["--teacher-conv-channels", "4"]),
@@ -79,8 +85,12 @@ RUNS = [
     ("paired_bc.py --bidirectional --env carracing", "paired_bc.py", "carracing", 3, ["--bidirectional", "--f1-tracks", "none"], [], []),
     ("accel.py --env walker", "accel.py", "walker", 2, [], ["--level-buffer-size", "32"], ["--level-buffer-size", "2"]),
 ]
+# On the GPU only, the same maze runs with --no-device-rollouts (the numpy env on the host, the policy on the
+# GPU, as before the device path): the baseline of the device path's speed-up, in the same run.
+NUMPY_ENV_BASELINES = ["plr.py", "plr.py --replay-prob 0 (DR)", "accel.py", "paired.py"]
 QUICK_UPDATES = 2
-TESTS = ["tests/test_cuda.py", "tests/test_device.py"]  # the tests that need a GPU, or have a GPU case
+# the tests that need a GPU, or have a GPU case
+TESTS = ["tests/test_cuda.py", "tests/test_device.py", "tests/test_maze_on_device.py"]
 TESTS_TIMEOUT, RUN_TIMEOUT = 240, 150  # seconds
 # The child process that times one run: report path, updates to time, script path, the script's arguments.
 TIMED_CHILD = f"import sys; sys.path.insert(0, {BENCHMARKS!r}); import gpu_check; gpu_check.time_script(*sys.argv[1:])"
@@ -205,13 +215,13 @@ def measure(label: str, script: str, env: str, updates: int, flags: list[str], b
             "wall_seconds": time.time() - start}
 
 
-def run_cuda_tests() -> dict:
-    """TESTS under pytest in a child process: each test's outcome ("file::test") and, if it did not pass, the
-    start of its report."""
+def run_cuda_tests(tests: list[str]) -> dict:
+    """The test files `tests` under pytest in a child process: each test's outcome ("file::test") and, if it
+    did not pass, the start of its report."""
     start = time.time()
     with tempfile.TemporaryDirectory() as scratch:
         junit = os.path.join(scratch, "junit.xml")
-        command = [sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", f"--junitxml={junit}", *TESTS]
+        command = [sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", f"--junitxml={junit}", *tests]
         try:
             result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=TESTS_TIMEOUT)
         except subprocess.TimeoutExpired as timeout:
@@ -259,12 +269,17 @@ def describe_machine() -> dict:
     return machine
 
 
-def speed_jobs(device: str, quick: bool) -> list[tuple]:
-    """measure's arguments for every run on `device`: at the paper's settings, or tiny."""
+def speed_jobs(device: str, quick: bool, only: list[str] | None = None) -> list[tuple]:
+    """measure's arguments for every run on `device` (or those of the labels in `only`): at the paper's
+    settings, or tiny; on the GPU, then the NUMPY_ENV_BASELINES among them with --no-device-rollouts."""
+    runs = [run for run in RUNS if only is None or run[0] in only]
+    if device == "cuda":
+        runs += [(label + " --no-device-rollouts", script, env, updates, [*flags, "--no-device-rollouts"], paper_flags, quick_flags)
+                 for label, script, env, updates, flags, paper_flags, quick_flags in runs if label in NUMPY_ENV_BASELINES]
     if quick:
         return [(label, script, env, QUICK_UPDATES, [*flags, *QUICK_FLAGS[env], *quick_flags], QUICK_BATCH[env], device)
-                for label, script, env, _, flags, _, quick_flags in RUNS]
-    return [(label, script, env, updates, [*flags, *paper_flags], BATCH[env], device) for label, script, env, updates, flags, paper_flags, _ in RUNS]
+                for label, script, env, _, flags, _, quick_flags in runs]
+    return [(label, script, env, updates, [*flags, *paper_flags], BATCH[env], device) for label, script, env, updates, flags, paper_flags, _ in runs]
 
 
 def time_runs(jobs: list[tuple], workers: int, report: dict, out: str) -> None:
@@ -304,7 +319,13 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true",
                         help="tiny runs of 2 updates, side by side on one thread each, and no CUDA tests: "
                              "checks that every run works (a minute on 2 cores)")
+    parser.add_argument("--only", nargs="+", metavar="LABEL", choices=[run[0] for run in RUNS],
+                        help="time only these runs (their labels, e.g. plr.py 'plr.py --replay-prob 0 (DR)' accel.py paired.py)")
+    parser.add_argument("--tests", nargs="+", metavar="FILE", default=TESTS, help=f"the test files to run on the GPU (default: {' '.join(TESTS)})")
     options = parser.parse_args()
+    missing = [path for path in options.tests if not os.path.isfile(os.path.join(ROOT, path))]
+    if missing:
+        parser.error(f"--tests: no such file: {' '.join(missing)}")
     if not os.path.isdir(os.path.dirname(os.path.abspath(options.out))):
         parser.error(f"--out {options.out}: no such directory")
     try:  # CarRacing and the walker are gymnasium's Box2D envs: without Box2D or pygame their runs would each fail
@@ -329,19 +350,19 @@ def main() -> None:
     write(report, options.out)
     if options.quick:  # tiny runs, which time nothing worth keeping, side by side on every core, one thread each
         os.environ["OMP_NUM_THREADS"] = "1"  # (torch's default pool in each of them would oversubscribe the cores)
-        time_runs([job for device in devices for job in speed_jobs(device, quick=True)], os.cpu_count(), report, options.out)
+        time_runs([job for device in devices for job in speed_jobs(device, True, options.only)], os.cpu_count(), report, options.out)
     else:  # one at a time: the GPU runs, the CUDA tests, then the CPU runs (the least new if time runs out)
         if "cuda" in devices:
-            time_runs(speed_jobs("cuda", quick=False), 1, report, options.out)
-            print(f"CUDA tests ({', '.join(TESTS)}) ...", flush=True)
-            report["tests"] = run_cuda_tests()
+            time_runs(speed_jobs("cuda", False, options.only), 1, report, options.out)
+            print(f"CUDA tests ({', '.join(options.tests)}) ...", flush=True)
+            report["tests"] = run_cuda_tests(options.tests)
             tests = report["tests"]
             print(f"  {tests.get('summary') or tests['error']}")
             for name, result in tests.get("results", {}).items():
                 if result["outcome"] in ("failed", "error"):
                     print(f"  {result['outcome'].upper()} {name}: {result['message'].strip().splitlines()[0][:300]}")
             write(report, options.out)
-        time_runs(speed_jobs("cpu", quick=False), 1, report, options.out)
+        time_runs(speed_jobs("cpu", False, options.only), 1, report, options.out)
     report["seconds"] = time.time() - start
     write(report, options.out)
     print(f"wrote {options.out} in {report['seconds']:.0f} s")

@@ -31,14 +31,18 @@ class Registered:
     """further keyword arguments of the class"""
     evaluation_episodes: int = 100
     """episodes per held-out level when `python -m envs.evaluate` is not told (a run's args.json tells it)"""
+    device_rollout: str | None = None
+    """its player of the student's whole rollouts on a GPU as "module:name", if it has one: a class built as
+    `cls(env, agent, storage, gamma, gae_lambda, device, graph=True)` and called with a batch of levels as a
+    script's rollout function is (envs.runs.rollouts_on_device)"""
 
 
 # name -> how to make it: the `--env` choices of every script and of envs/evaluate.py. A script's paper
 # settings for an env (its PAPER_DEFAULTS) belong to the algorithm; an env without them runs on the
 # script's defaults.
 REGISTRY: dict[str, Registered] = {
-    "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}),
-    "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}),
+    "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}, device_rollout="envs.maze.on_device:DeviceRollout"),
+    "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}, device_rollout="envs.maze.on_device:DeviceRollout"),
     "carracing": Registered("envs.carracing.env:CarRacingEnv", evaluation_episodes=10),
     "walker": Registered("envs.walker.env:WalkerEnv"),
 }

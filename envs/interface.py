@@ -5,6 +5,8 @@
 and envs/evaluation.py use nothing else, so a new env that implements these runs under every script once
 registered in envs.REGISTRY.
 `env.teacher()` returns a `TeacherMDP`, PAIRED's adversary environment.
+An env's REGISTRY entry may also name a player of the student's whole rollouts on a GPU (the maze's is
+envs/maze/on_device.py); without one, or on a CPU, the scripts play their rollouts with `reset` and `step`.
 
 Levels travel as a level batch: a dataclass of numpy arrays with one row per level (envs/levels.py's
 LevelBatch), the env's own `Levels` class. Each env runs `num_envs` copies at once; copy i plays row i

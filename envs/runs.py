@@ -205,6 +205,18 @@ def select_device(use_cuda: bool, torch_deterministic: bool, env: str) -> torch.
     return device
 
 
+def rollouts_on_device(env, agent, storage, args, device: torch.device, normalizer=None):
+    """The env's own player of whole student rollouts on a GPU (the maze's, envs/maze/on_device.py: the env as
+    torch ops, each rollout one CUDA graph), called with a batch of levels as the script's rollout function
+    is; None where the script's own rollout plays them: on a CPU, with --no-device-rollouts, for an env
+    without one (its REGISTRY entry names none), or where returns are normalized (on the host)."""
+    registered = envs.REGISTRY.get(args.env)
+    if device.type != "cuda" or not args.device_rollouts or registered is None or registered.device_rollout is None or normalizer is not None:
+        return None
+    module, name = registered.device_rollout.split(":")
+    return getattr(importlib.import_module(module), name)(env, agent, storage, args.gamma, args.gae_lambda, device, graph=True)
+
+
 def save_checkpoint(path: str, state: dict) -> None:
     """Written beside and renamed over the old one: a run killed while saving keeps its last checkpoint."""
     tmp = path + ".tmp"

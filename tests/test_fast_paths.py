@@ -134,17 +134,25 @@ def test_teacher_fast_acting_equals_plain_over_an_episode(setting, budget, unifo
                 param.add_(0.01 * torch.randn_like(param))
 
 
-def test_fast_sampling_follows_the_policy():
-    """The fast step's actions are distributed as the policy: a student whose heads ignore their input
-    and whose logits are fixed by the actor's output bias."""
-    torch.manual_seed(5)
-    probs = torch.tensor([0.5, 0.0, 0.3, 0.2, 0.0, 0.0, 0.0])
+FIXED_POLICY = torch.tensor([0.5, 0.0, 0.3, 0.2, 0.0, 0.0, 0.0])
+
+
+def student_with_a_fixed_policy() -> MazeStudent:
+    """A student (LSTM of 8) whose heads ignore their input and whose policy is FIXED_POLICY, by the actor's
+    output bias."""
     net = MazeStudent(8)
     with torch.no_grad():
         for head in (net.actor, net.critic):
             for param in head.parameters():
                 param.zero_()
-        net.actor[2].bias.copy_(torch.log(probs.clamp(min=1e-12)))
+        net.actor[2].bias.copy_(torch.log(FIXED_POLICY.clamp(min=1e-12)))
+    return net
+
+
+def test_fast_sampling_follows_the_policy():
+    """The fast step's actions are distributed as the policy: `student_with_a_fixed_policy`."""
+    torch.manual_seed(5)
+    probs, net = FIXED_POLICY, student_with_a_fixed_policy()
     n = 100_000
     obs = {"image": torch.zeros(n, 5, 5, 3, dtype=torch.uint8), "direction": torch.zeros(n, dtype=torch.long)}
     action, logprob, entropy, _, _ = fast_acting_step(net, obs, net.initial_state(n), torch.ones(n))

@@ -230,6 +230,29 @@ def render_levels(levels: MazeLevels, visited: np.ndarray | None = None) -> np.n
 # ---------------------------------------------------------------------------------------------------
 # The student env: every copy plays its own level; an ended episode restarts the same level.
 # ---------------------------------------------------------------------------------------------------
+def student_layout(levels: MazeLevels) -> dict:
+    """The student env's tables for a batch of levels, as flat indices: each level's codes padded by a
+    ring of walls as deep as the view, so a view never leaves the grid; a cell (x, y) of copy i is
+    codes[base[i] + (y + pad) * width + x + pad]. start: each copy's start cell; move[d]: the index step
+    of direction d; view[d]: the 25 cells of the view (row 0 farthest) relative to the agent's cell."""
+    n = len(levels)
+    h, w = levels.size
+    pad = VIEW_SIZE - 1
+    height, width = h + 2 * pad, w + 2 * pad
+    codes = np.full((n, height, width), WALL, dtype=np.uint8)
+    codes[:, pad : pad + h, pad : pad + w] = levels.walls
+    index = np.arange(n)
+    codes[index, levels.goal[:, 1] + pad, levels.goal[:, 0] + pad] = GOAL
+    forward = np.arange(VIEW_SIZE - 1, -1, -1)[:, None]  # row 0 is the farthest
+    lateral = np.arange(VIEW_SIZE)[None, :] - VIEW_SIZE // 2
+    fx, fy = DIRECTION_VECTORS[:, 0, None, None], DIRECTION_VECTORS[:, 1, None, None]
+    rx, ry = -fy, fx  # the agent's right
+    return {"width": width, "codes": codes.reshape(-1), "base": index * height * width,
+            "start": (levels.agent[:, 1] + pad) * width + levels.agent[:, 0] + pad,
+            "move": DIRECTION_VECTORS[:, 0] + DIRECTION_VECTORS[:, 1] * width,
+            "view": ((forward * fx + lateral * rx) + (forward * fy + lateral * ry) * width).reshape(4, -1)}
+
+
 class MazeEnv:
     """The maze UPOMDP over `num_envs` copies, stepped together with numpy.
 
@@ -365,25 +388,10 @@ class MazeEnv:
         """Copy i now plays levels[i]; returns the first observations."""
         if len(levels) != self.num_envs:
             raise ValueError(f"reset got {len(levels)} levels for {self.num_envs} env copies")
-        h, w = levels.size
-        pad = VIEW_SIZE - 1
-        self.height, self.width = h + 2 * pad, w + 2 * pad
         self.max_steps = max_steps
-        codes = np.full((self.num_envs, self.height, self.width), WALL, dtype=np.uint8)
-        codes[:, pad : pad + h, pad : pad + w] = levels.walls
-        index = np.arange(self.num_envs)
-        codes[index, levels.goal[:, 1] + pad, levels.goal[:, 0] + pad] = GOAL
-        # Flat indices: a cell (x, y) of copy i is codes_flat[base[i] + (y + pad) * width + x + pad].
-        self.codes = codes.reshape(-1)
-        self.base = index * self.height * self.width
-        self.start = (levels.agent[:, 1] + pad) * self.width + levels.agent[:, 0] + pad
+        layout = student_layout(levels)
+        self.width, self.codes, self.base, self.start, self.move, self.view = (layout[k] for k in ("width", "codes", "base", "start", "move", "view"))
         self.start_dir = self.drawn_directions(levels.agent_dir)
-        self.move = DIRECTION_VECTORS[:, 0] + DIRECTION_VECTORS[:, 1] * self.width
-        forward = np.arange(VIEW_SIZE - 1, -1, -1)[:, None]  # row 0 is the farthest
-        lateral = np.arange(VIEW_SIZE)[None, :] - VIEW_SIZE // 2
-        fx, fy = DIRECTION_VECTORS[:, 0, None, None], DIRECTION_VECTORS[:, 1, None, None]
-        rx, ry = -fy, fx  # the agent's right
-        self.view = ((forward * fx + lateral * rx) + (forward * fy + lateral * ry) * self.width).reshape(4, -1)
         self.pos = self.start.copy()
         self.dir = np.zeros(self.num_envs, dtype=np.int64)
         self.t = np.zeros(self.num_envs, dtype=np.int64)

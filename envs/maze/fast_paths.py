@@ -186,15 +186,23 @@ def lstm_and_head_weights(net: nn.Module) -> dict[str, torch.Tensor]:
 
 def step_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
     """An acting step from the input's share of the gates, W_ih x + b_ih + b_hh [N, 4H] in the gate order
-    of `lstm_and_head_weights` (it is overwritten): torch's LSTM cell in place and the fused heads.
-    -> the normalized log-probabilities [N, A] (as Categorical(logits=...) holds them), value, new state."""
-    hidden_size = weights["lstm_recurrent"].shape[0]
+    of `lstm_and_head_weights` (it is overwritten): the state zeroed where an episode starts, then
+    `lstm_cell_and_heads`. -> the normalized log-probabilities [N, A], value, new state."""
     reset = done.view(-1, 1).bool()
     h, c = state[0][0], state[1][0]
     # Zero the state of copies whose episode starts. On a CPU, most steps have none, and asking costs less
     # than the fill; on a GPU the question would wait for the device, so the fill always runs there.
     if reset.device.type != "cpu" or reset.any():
         h, c = h.masked_fill(reset, 0.0), c.masked_fill(reset, 0.0)
+    log_probs, value, h, c = lstm_cell_and_heads(gate_inputs, h, c, weights)
+    return log_probs, value, (h.unsqueeze(0), c.unsqueeze(0))
+
+
+def lstm_cell_and_heads(gate_inputs: torch.Tensor, h: torch.Tensor, c: torch.Tensor, weights: dict):
+    """torch's LSTM cell in place on the gate inputs (overwritten), from the state h, c [N, H], and the
+    fused heads. -> the normalized log-probabilities [N, A] (as Categorical(logits=...) holds them),
+    value [N], new h and c [N, H]."""
+    hidden_size = weights["lstm_recurrent"].shape[0]
     gates = gate_inputs.addmm_(h, weights["lstm_recurrent"])
     gates[:, : 3 * hidden_size].sigmoid_()
     gates[:, 3 * hidden_size :].tanh_()
@@ -204,7 +212,7 @@ def step_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, 
     first, first_bias, second, second_bias = weights["heads"]
     out = torch.addmm(second_bias, torch.addmm(first_bias, h, first).tanh_(), second)
     logits, value = out[:, :-1], out[:, -1]
-    return logits - logits.logsumexp(-1, keepdim=True), value, (h.unsqueeze(0), c.unsqueeze(0))
+    return logits - logits.logsumexp(-1, keepdim=True), value, h, c
 
 
 def act_from_gate_inputs(gate_inputs: torch.Tensor, state, done: torch.Tensor, weights: dict):
