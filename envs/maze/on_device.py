@@ -179,7 +179,8 @@ class DeviceRollout:
                 self.play()
         storage = self.storage
         returns_per_copy = episode_returns(storage.rewards.cpu().numpy(), storage.dones.cpu().numpy(), self.final_ended.cpu().numpy())
-        return self.advantages, self.advantages + storage.values, returns_per_copy
+        advantages = self.advantages.clone()  # the graph's own tensor is rewritten by the next rollout
+        return advantages, advantages + storage.values, returns_per_copy
 
     def refresh_inputs(self, weights: dict) -> None:
         """The rollout's inputs as fixed buffers, written in place: the level tables at every rollout, the
