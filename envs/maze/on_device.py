@@ -153,7 +153,7 @@ class DeviceRollout:
     `graph`: capture the rollout as a CUDA graph (on a GPU)."""
 
     def __init__(self, env: MazeEnv, agent, storage, gamma: float, gae_lambda: float, device, graph: bool):
-        self.env, self.agent, self.storage, self.device = env, agent, storage, device
+        self.agent, self.storage, self.device = agent, storage, device
         self.gamma, self.gae_lambda, self.graph = gamma, gae_lambda, graph
         self.num_steps, self.num_envs = storage.rewards.shape
         self.torch_env = MazeTorchEnv(env, device)
