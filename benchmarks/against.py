@@ -12,6 +12,7 @@ starts within the run) and CarRacing's held-out F1 tracks left out; both sides g
     python benchmarks/against.py 15e73fc                 # every case, 2 rounds
     python benchmarks/against.py a26ba50 --only maze     # the maze cases only
     python benchmarks/against.py 15e73fc --rounds 3 --only carracing walker
+    python benchmarks/against.py d936cb0 --only maze --case paired_evo --rounds 7   # one case, more rounds
 
 Measure on an idle machine: a figure taken beside other work is no speed claim. The last lines give
 each case's median rate on both sides and the ratio this checkout / COMMIT.
@@ -82,9 +83,14 @@ def main() -> None:
     parser.add_argument("commit", help="the commit to compare this checkout against (e.g. the last release)")
     parser.add_argument("--rounds", type=int, default=2, help="COMMIT-then-this-checkout rounds (medians over them)")
     parser.add_argument("--only", nargs="*", choices=sorted(BATCH), default=sorted(BATCH), help="the envs whose cases run")
+    parser.add_argument("--case", default="", help="only the cases whose label contains this text (e.g. paired_evo)")
     options = parser.parse_args()
     if options.rounds < 1:
         print("error: --rounds must be at least 1", file=sys.stderr)
+        sys.exit(2)
+    cases = [case for case in CASES if case[1] in options.only and options.case in case[0]]
+    if not cases:
+        print(f"error: no case of {' '.join(options.only)} has {options.case!r} in its label", file=sys.stderr)
         sys.exit(2)
     if subprocess.run(["git", "-C", ROOT, "rev-parse", "--verify", "--quiet", options.commit + "^{commit}"],
                       capture_output=True).returncode != 0:
@@ -96,7 +102,6 @@ def main() -> None:
     dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout
     print(f"this checkout: {head}{' with uncommitted changes' if dirty else ''}; against {options.commit}; "
           f"torch {torch.__version__}, {torch.get_num_threads()} threads (torch's default), {os.cpu_count()} cores")
-    cases = [case for case in CASES if case[1] in options.only]
     rates = {(label, env): {"commit": [], "head": []} for label, env, *_ in cases}
     with tempfile.TemporaryDirectory() as scratch:
         sides = {"commit": copy_of_commit(options.commit, scratch), "head": ROOT}
