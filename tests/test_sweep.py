@@ -13,8 +13,8 @@ import pytest
 import torch
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "4096", "--level-buffer-size", "8",
-        "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "10", "--checkpoint-interval", "1"]
+TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "1536", "--level-buffer-size", "8",
+        "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "4", "--checkpoint-interval", "1"]
 
 
 def sweep_file(path, experiments: dict, seeds=(1,), parallel=1) -> str:
@@ -60,7 +60,7 @@ def test_a_killed_sweep_resumes_and_collects(tmp_path):
     for name in ("robust", "dr"):
         (run,) = (work / "runs").glob(f"maze__{name}__1__*")
         assert (run / "eval.json").is_file()
-        assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 33))  # 4096 / 128 updates, once each
+        assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 13))  # 1536 / 128 updates, once each
     assert "resuming" in (work / "logs" / "robust_1.log").read_text()
 
     again = sweep(path, "--workdir", str(work))  # everything finished: nothing runs
@@ -168,28 +168,28 @@ def test_a_run_killed_by_a_signal_ends_its_lane(tmp_path):
 
 
 def test_a_sweep_file_that_raises_the_budget_continues_its_finished_runs(tmp_path):
-    """A finished DR run of 1024 steps; the same sweep with a budget of 2048 and milestones continues it
-    (it is not skipped as finished, nor started anew) to 2048, where its first end's evaluation is kept as
-    eval_1024.json; a third launch with the old budget skips it. Collecting a run still going copies its
+    """A finished DR run of 512 steps; the same sweep with a budget of 1024 and milestones continues it
+    (it is not skipped as finished, nor started anew) to 1024, where its first end's evaluation is kept as
+    eval_512.json; a third launch with the old budget skips it. Collecting a run still going copies its
     milestones so far and no eval.json."""
-    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "1024", *TINY[TINY.index("--total-timesteps") + 2:]]
+    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "512", *TINY[TINY.index("--total-timesteps") + 2:]]
     first = sweep_file(tmp_path / "first.toml", {"dr": ["plr.py", *short, "--replay-prob", "0"]})
     assert sweep(first, "--workdir", str(tmp_path)).returncode == 0
     (run,) = (tmp_path / "runs").glob("maze__dr__1__*")
-    longer = sweep_file(tmp_path / "longer.toml", {"dr": ["plr.py", *short[:short.index("--total-timesteps")], "--total-timesteps", "2048",
-                                                          "--milestones", "1024", "2048", "--replay-prob", "0"]})
+    longer = sweep_file(tmp_path / "longer.toml", {"dr": ["plr.py", *short[:short.index("--total-timesteps")], "--total-timesteps", "1024",
+                                                          "--milestones", "512", "1024", "--replay-prob", "0"]})
     result = sweep(longer, "--workdir", str(tmp_path))
     assert result.returncode == 0 and f"resumed {run}" in result.stdout, result.stdout + result.stderr
-    assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 17))  # 2048 / 128 updates, once each
-    assert {"eval.json", "eval_1024.json", "eval_2048.json"} <= set(os.listdir(run))
-    assert json.loads((run / "args.json").read_text())["total_timesteps"] == 2048
+    assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 9))  # 1024 / 128 updates, once each
+    assert {"eval.json", "eval_512.json", "eval_1024.json"} <= set(os.listdir(run))
+    assert json.loads((run / "args.json").read_text())["total_timesteps"] == 1024
     again = sweep(first, "--workdir", str(tmp_path))
     assert again.returncode == 0 and "finished earlier" in again.stdout
 
     (run / "eval.json").unlink()  # as a run continued further would be, until its new end
     collected = tmp_path / "results"
     assert sweep(longer, "--workdir", str(tmp_path), "--collect", str(collected)).returncode == 0
-    assert sorted(os.listdir(collected / "dr" / "1")) == ["args.json", "eval_1024.json", "eval_2048.json", "levels.png", "metrics.csv"]
+    assert sorted(os.listdir(collected / "dr" / "1")) == ["args.json", "eval_1024.json", "eval_512.json", "levels.png", "metrics.csv"]
 
 
 @pytest.mark.parametrize("name", sorted(os.listdir(os.path.join(ROOT, "results", "sweeps"))))
