@@ -159,7 +159,7 @@ def test_a_run_killed_by_a_signal_ends_its_lane(tmp_path):
     deadline = time.time() + 300
     while time.time() < deadline and not list(tmp_path.glob("runs/maze__first__1__*/metrics.csv")):
         time.sleep(0.1)
-    run = subprocess.run(["pgrep", "-f", f"plr.py .*--exp-name first"], capture_output=True, text=True).stdout.split()
+    run = subprocess.run(["pgrep", "-f", "plr.py .*--exp-name first"], capture_output=True, text=True).stdout.split()
     assert len(run) == 1
     os.kill(int(run[0]), signal.SIGTERM)
     output, _ = process.communicate(timeout=120)
