@@ -2,8 +2,9 @@
 
 Each of the `episodes` episodes of a held-out level runs to its own end in its own env copy, and only
 that first episode counts: long episodes weigh as much as short ones (the paper's "episodes evaluated in
-sequence", unlike counting whichever episodes finish first in parallel workers). The copies are stepped
-together only for speed. The policy is the stochastic one.
+sequence", unlike counting whichever episodes finish first in parallel workers). The policy is the
+stochastic one. The copies, and all the levels evaluated, are stepped together only for speed: each level
+draws from its own seed (`play_first_episodes`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import os
 
 import numpy as np
 import torch
+from torch.distributions import Categorical, Independent
 
 import envs
 from envs.runs import fail
@@ -28,49 +30,101 @@ def to_torch(obs: dict, device) -> dict:
     return {k: torch.as_tensor(v, device=device) for k, v in obs.items()}
 
 
-@torch.no_grad()
 def evaluate(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
-    """Returns of `episodes` first episodes of the agent on a HeldOutLevel (fresh draws of its random
-    parts, from `seed`). Actions are sampled from torch's generator forked and seeded here, so evaluating
-    never shifts the random stream of training."""
-    on_cuda = torch.device(device).type == "cuda"
-    with torch.random.fork_rng(devices=[torch.device(device)] if on_cuda else []):
-        torch.manual_seed(seed)
-        return _play_first_episodes(agent, env_name, level, episodes, seed, device)
+    """Returns of `episodes` first episodes of the agent on a HeldOutLevel, its random parts and the
+    actions drawn from `seed` (`play_first_episodes`)."""
+    return play_first_episodes(agent, env_name, [level], episodes, [seed], device)[0]
 
 
-def _play_first_episodes(agent, env_name: str, level, episodes: int, seed: int, device) -> np.ndarray:
-    env = envs.make(env_name, episodes, seed)
-    env.training = False  # no training-only reward shaping
-    obs = env.reset(level.generate(episodes, np.random.default_rng(seed)), level.max_steps)
-    state = agent.initial_state(episodes, device)
-    done = torch.ones(episodes, device=device)
-    finished = np.zeros(episodes, dtype=bool)
-    returns = np.zeros(episodes, dtype=np.float64)
-    while not finished.all():
-        action, _, _, _, state = agent.get_action_and_value(to_torch(obs, device), state, done)
-        obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        returns += np.where(finished, 0.0, reward)
-        ended = terminated | truncated
-        finished |= ended
-        done = torch.as_tensor(ended, dtype=torch.float32, device=device)
-    env.close()
+@torch.no_grad()
+def play_first_episodes(agent, env_name: str, levels, episodes: int, seeds, device) -> np.ndarray:
+    """Returns [level, episode] of `episodes` first episodes of the agent on each HeldOutLevel of `levels`.
+
+    Level i draws from seeds[i] alone: its level instances, its env copies' random parts, and the actions
+    sampled for them, from torch's generator on `device` seeded with seeds[i] (its state is swapped in
+    around that level's draw, inside a fork: evaluating never shifts the random stream of training). The
+    agent runs on the copies of all levels still playing at once, as one batch: each step costs one pass
+    of the network, not one per level. So a level plays what it would play evaluated on its own, up to the float rounding
+    of the network's sums at another batch size (a discrete draw near a boundary, a continuous action's
+    last bits)."""
+    generator = device_generator(device)
+    on_cuda = generator.device.type == "cuda"
+    with torch.random.fork_rng(devices=[generator.device] if on_cuda else []):
+        generator_states = [generator.manual_seed(seed).get_state() for seed in seeds]
+        level_envs, observations = [], []
+        for level, seed in zip(levels, seeds):
+            env = envs.make(env_name, episodes, seed)
+            env.training = False  # no training-only reward shaping
+            observations.append(env.reset(level.generate(episodes, np.random.default_rng(seed)), level.max_steps))
+            level_envs.append(env)
+        finished = np.zeros((len(levels), episodes), dtype=bool)
+        returns = np.zeros((len(levels), episodes), dtype=np.float64)
+        playing = list(range(len(levels)))  # the levels whose copies the batch holds, in order
+        state = agent.initial_state(len(levels) * episodes, device)
+        done = torch.ones(len(levels) * episodes, device=device)
+        while True:
+            obs = {key: np.concatenate([observations[i][key] for i in playing]) for key in observations[0]}
+            policy, state = agent.policy_and_state(to_torch(obs, device), state, done)
+            actions = []
+            for k, i in enumerate(playing):  # level i's actions, from its own generator's state
+                generator.set_state(generator_states[i])
+                actions.append(agent.sample(distribution_rows(policy, slice(k * episodes, (k + 1) * episodes))))
+                generator_states[i] = generator.get_state()
+            actions = torch.cat(actions).cpu().numpy()  # one copy from the device per step
+            ended = np.zeros((len(playing), episodes), dtype=bool)
+            for k, i in enumerate(playing):
+                observations[i], reward, terminated, truncated, _ = level_envs[i].step(actions[k * episodes : (k + 1) * episodes])
+                returns[i] += np.where(finished[i], 0.0, reward)
+                ended[k] = terminated | truncated
+                finished[i] |= ended[k]
+            still = [k for k, i in enumerate(playing) if not finished[i].all()]
+            if not still:
+                break
+            if len(still) < len(playing):  # a level done: its copies, and their state, leave the batch
+                rows = np.concatenate([np.arange(k * episodes, (k + 1) * episodes) for k in still])
+                state, ended = state_rows(state, torch.as_tensor(rows, device=device)), ended[still]
+                playing = [playing[k] for k in still]
+            done = torch.as_tensor(ended.reshape(-1), dtype=torch.float32, device=device)
+        for env in level_envs:
+            env.close()
     return returns
 
 
+def state_rows(state, rows: torch.Tensor):
+    """Some copies' rows of a net's state: None (a feed-forward net), or the LSTM's (h, c), each [1, N, H]
+    (envs/nets.py)."""
+    return None if state is None else tuple(part[:, rows] for part in state)
+
+
+def device_generator(device) -> torch.Generator:
+    """The generator torch's sampling on `device` draws from."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.default_generators[device.index if device.index is not None else torch.cuda.current_device()]
+    return torch.default_generator
+
+
+def distribution_rows(dist, rows: slice):
+    """Some rows of a batch of distributions, as a distribution of the same kind: a Categorical of those
+    rows' probabilities, an Independent (or a subclass: CarRacing's BetaPolicy) of its base's rows, any other
+    kind built from those rows of its parameters. (The batch's parameters were checked as it was built.)"""
+    if isinstance(dist, Independent):
+        return type(dist)(distribution_rows(dist.base_dist, rows), dist.reinterpreted_batch_ndims, validate_args=False)
+    if isinstance(dist, Categorical):  # its probabilities, computed once for the batch
+        return Categorical(probs=dist.probs[rows], validate_args=False)
+    return type(dist)(**{name: getattr(dist, name)[rows] for name in dist.arg_constraints}, validate_args=False)
+
+
 def evaluate_all(agent, env_name: str, names, episodes: int, seed: int, device) -> dict[str, dict]:
-    """{level name: {"solved_rate", "mean_return"}} over the named held-out levels of the env."""
+    """{level name: {"solved_rate", "mean_return"}} over the named held-out levels of the env, level i
+    played from seed + 1000 * i."""
     env = envs.make(env_name, 1, seed)
     held_out = env.test_levels()
     env.close()
-    results = {}
-    for i, name in enumerate(names):
-        returns = evaluate(agent, env_name, held_out[name], episodes, seed + 1000 * i, device)
-        results[name] = {
-            "solved_rate": float(np.mean(returns > env.solved_threshold)),
-            "mean_return": float(np.mean(returns)),
-        }
-    return results
+    returns = play_first_episodes(agent, env_name, [held_out[name] for name in names], episodes,
+                                  [seed + 1000 * i for i in range(len(names))], device)
+    return {name: {"solved_rate": float(np.mean(level_returns > env.solved_threshold)),
+                   "mean_return": float(np.mean(level_returns))} for name, level_returns in zip(names, returns)}
 
 
 def save_held_out_evaluation(agent, env_name: str, episodes: int, seed: int, device, paths) -> dict:

@@ -173,6 +173,22 @@ class RecurrentCategoricalActorCritic(nn.Module):
         hidden, _ = self.lstm_output(obs, state, done)
         return self.critic(hidden).squeeze(-1)
 
+    def policy_and_state(self, obs: dict, state, done):
+        """An acting step's policy and new state, drawing no action: for a caller that draws each batch's
+        actions from a random stream of its own (the held-out evaluation, envs/evaluation.py)."""
+        if not torch.is_grad_enabled():
+            fast_path = self.fast_path()
+            if fast_path is not None:
+                stepped = fast_path.policy_and_state(self, obs, state, done)
+                if stepped is not None:
+                    return stepped
+        hidden, state = self.lstm_output(obs, state, done)
+        return Categorical(logits=self.actor(hidden)), state
+
+    def sample(self, dist: Categorical) -> torch.Tensor:
+        """A fresh action from the policy."""
+        return dist.sample()
+
     def get_action_and_value(self, obs: dict, state, done, action=None):
         """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
         if action is None and not torch.is_grad_enabled():
@@ -184,7 +200,7 @@ class RecurrentCategoricalActorCritic(nn.Module):
         hidden, state = self.lstm_output(obs, state, done)
         dist = Categorical(logits=self.actor(hidden))
         if action is None:
-            action = dist.sample()
+            action = self.sample(dist)
         return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1), state
 
 
@@ -213,6 +229,10 @@ class FeedForwardActorCritic(nn.Module):
 
     def get_value(self, obs: dict, state=None, done=None) -> torch.Tensor:
         return self.dist_and_value(obs)[1]
+
+    def policy_and_state(self, obs: dict, state=None, done=None):
+        """The policy and the state (always None), drawing no action (envs/evaluation.py draws it)."""
+        return self.dist(obs), None
 
     def get_action_and_value(self, obs: dict, state=None, done=None, action=None):
         """-> action, log-probability, entropy, value, state (always None)."""

@@ -1,5 +1,6 @@
-"""The tests run single-threaded: on two cores shared with the scripts they start, torch's default
-thread pool makes these small workloads many times slower. Subprocesses inherit OMP_NUM_THREADS."""
+"""The tests run single-threaded, one worker process per core (pytest-xdist, `-n auto` in pyproject.toml):
+on cores shared with the scripts they start, torch's default thread pool makes these small workloads many
+times slower. Subprocesses inherit OMP_NUM_THREADS."""
 
 import os
 
@@ -66,3 +67,10 @@ def assert_acting_equals_training(net, obs: dict, state, done, atol: float) -> N
     assert torch.equal(acting[0], action)
     for got, expected in zip((*acting[1:4], *acting[4]), (logprob, entropy, value, h, c)):
         assert torch.allclose(got, expected, atol=atol)
+
+
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: a worker per core this process may use, at most 8 (a test file is the unit shared out,
+    and a few files take most of the time)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return min(8, cores)

@@ -113,6 +113,27 @@ def test_student_fast_acting_follows_a_changed_conv(monkeypatch):
     assert_fast_step_equals_plain(net, obs, state, torch.tensor([0.0, 1, 0, 0, 0, 1]), monkeypatch)
 
 
+def test_student_fast_policy_step_equals_plain(monkeypatch):
+    """The held-out evaluation's step (the policy and new state, no action drawn: envs/evaluation.py) runs
+    on the fast path once its weights are built, and gives the plain net's probabilities and state."""
+    torch.manual_seed(13)
+    net = MazeStudent()
+    env = MazeEnv("maze", 6, seed=5)
+    obs = as_torch(env.reset(env.random_levels(6, np.random.default_rng(5))))
+    state = (torch.randn(1, 6, 256), torch.randn(1, 6, 256))
+    done = torch.tensor([1.0, 0, 0, 1, 0, 0])
+    with torch.no_grad():
+        net.policy_and_state(obs, state, done)  # builds and checks the derived weights
+        with pytest.MonkeyPatch.context() as patch:
+            fast_steps = count_calls(patch, "step_from_gate_inputs")
+            fast_policy, (fast_h, fast_c) = net.policy_and_state(obs, state, done)
+        assert fast_steps == [True]
+        monkeypatch.setenv("CLEANUED_PLAIN_NETS", "1")
+        plain_policy, (plain_h, plain_c) = net.policy_and_state(obs, state, done)
+    for got, expected in ((fast_policy.probs, plain_policy.probs), (fast_h, plain_h), (fast_c, plain_c)):
+        assert torch.allclose(got, expected, atol=1e-6, rtol=1e-5)
+
+
 @pytest.mark.parametrize("setting,budget,uniform", [("maze", 60, True), ("maze25", 25, False)])
 def test_teacher_fast_acting_equals_plain_over_an_episode(setting, budget, uniform, monkeypatch):
     """A whole teacher episode, each step from the fast step's own state and action (the running conv

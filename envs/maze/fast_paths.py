@@ -33,7 +33,9 @@ teacher's grid changes in at most one cell per step, so the conv features' share
 carried from step to step and only the conv windows over a changed cell are recomputed
 (envs/maze/sparse_projection.py); its time embedding becomes a table of gate inputs too. The action is drawn
 as the plain path's Categorical.sample draws it, with torch.multinomial on the same probabilities, so
-both paths draw the same actions from the same random stream.
+both paths draw the same actions from the same random stream. The held-out evaluation's step
+(`policy_and_state`: the policy and new state, the action drawn by envs/evaluation.py) runs on the same
+derived weights.
 
 **Training** the teacher (a whole rollout, T > 1) computes the LSTM's input projection from the changed
 cells only (envs/maze/sparse_projection.py), then the recurrence with `MaskedLSTMRecurrence`. The student
@@ -111,6 +113,15 @@ class FastPath:
         if weights is None:
             return None
         return act_from_gate_inputs(self.gate_inputs(weights, obs), state, done, weights)
+
+    def policy_and_state(self, net, obs: dict, state, done: torch.Tensor):
+        """An acting step's policy (a Categorical of the normalized log-probabilities) and new state, drawing
+        no action; None if the check of rebuilt weights fails now."""
+        weights = self.checked_weights(net, obs, state, done)
+        if weights is None:
+            return None
+        log_probs, _, state = step_from_gate_inputs(self.gate_inputs(weights, obs), state, done, weights)
+        return Categorical(logits=log_probs), state
 
     def lstm_output(self, net, obs: dict, state, done: torch.Tensor):
         """A pass that is not an acting step: the LSTM's output and state from a faster training path, or
