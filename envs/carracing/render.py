@@ -330,7 +330,6 @@ class ViewRenderer:
         velocity [., 2]; wheel_xy [., 4, 2] and wheel_angle [., 4] relative to the hull (in its frame),
         wheel_phase [., 4], speed, wheel_omega [., 4], steering (front-left joint angle), angular
         velocity."""
-        count = len(copies)
         camera = camera_angle(car["angle"], car["velocity"])
         classes = self.flat.take(self._map_index(copies, car["x"], car["y"], camera))
         tilt = car["angle"] - camera  # the hull's angle in the view
