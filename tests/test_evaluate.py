@@ -5,12 +5,11 @@ evaluation repeated. And the GIFs of envs/video.py on every env."""
 import glob
 import json
 import os
-import subprocess
-import sys
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
+import script_runs
 import torch
 
 import envs
@@ -136,7 +135,7 @@ def test_a_finished_runs_checkpoint_gives_its_eval_json_again(tmp_path):
     script = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "plr.py")
     tiny = ["--env", "maze", "--seed", "4", "--total-timesteps", "256", "--num-envs", "4", "--num-steps", "32",
             "--level-buffer-size", "8", "--eval-episodes", "2"]
-    result = subprocess.run([sys.executable, script, *tiny], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    result = script_runs.run([script, *tiny], tmp_path, timeout=300)
     assert result.returncode == 0, result.stderr
     (name,) = os.listdir(tmp_path / "runs")
     run = tmp_path / "runs" / name

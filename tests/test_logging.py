@@ -5,13 +5,13 @@ images in wandb with --track."""
 import importlib
 import json
 import os
-import subprocess
 import sys
 import types
 
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+import script_runs
 from torch.utils.tensorboard import SummaryWriter
 
 from envs.runs import log_image
@@ -58,8 +58,7 @@ def test_capture_video_writes_a_gif_per_held_out_level(tmp_path):
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     tiny = ["--env", "maze", "--replay-prob", "0", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "128",
             "--eval-episodes", "1", "--capture-video"]
-    result = subprocess.run([sys.executable, os.path.join(root, "plr.py"), *tiny], cwd=tmp_path, capture_output=True, text=True,
-                            timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    result = script_runs.run([os.path.join(root, "plr.py"), *tiny], tmp_path, {**os.environ, "OMP_NUM_THREADS": "1"})
     assert result.returncode == 0, result.stderr
     (run_dir,) = (tmp_path / "runs").iterdir()
     with open(run_dir / "eval.json") as f:

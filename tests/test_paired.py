@@ -6,12 +6,11 @@ import concurrent.futures
 import copy
 import csv
 import os
-import subprocess
-import sys
 
 import gymnasium as gym
 import numpy as np
 import pytest
+import script_runs
 import torch
 
 import paired
@@ -21,7 +20,7 @@ from envs.evaluation import to_torch
 from envs.maze import MazeEnv
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-# One torch thread per subprocess: on a loaded 2-core machine, two busy-waiting OpenMP threads per
+# One torch thread per run: on a loaded 2-core machine, two busy-waiting OpenMP threads per
 # process slow the small ops of these runs down by an order of magnitude.
 SUBPROCESS_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 
@@ -269,8 +268,7 @@ def test_ppo_update_kl_coef_zero_is_plain_ppo():
 
 
 def run_script(script, args, cwd):
-    return subprocess.run([sys.executable, os.path.join(ROOT, script), *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=400, env=SUBPROCESS_ENV)
+    return script_runs.run([os.path.join(ROOT, script), *args], cwd, SUBPROCESS_ENV, timeout=400)
 
 
 def metrics_of(cwd):

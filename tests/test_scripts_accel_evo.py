@@ -1,7 +1,7 @@
-"""accel.py and paired_evo.py end to end as subprocesses (CleanRL's way): the run directory of each mode,
-the step accounting of replay updates (training rollout plus the children's evaluation rollout), the
-BC schedule, and a kill-and-resume round trip per script that must end exactly where an uninterrupted
-run ends.
+"""accel.py and paired_evo.py end to end, each run a process of its own (tests/script_runs.py): the run
+directory of each mode, the step accounting of replay updates (training rollout plus the children's
+evaluation rollout), the BC schedule, and a kill-and-resume round trip per script that must end exactly
+where an uninterrupted run ends.
 
 The runs are independent, so a module fixture plays them three at a time (one torch thread each: on a
 loaded 2-core machine the third process keeps the wall time down) and the tests check their results.
@@ -13,11 +13,10 @@ import json
 import math
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
+import script_runs
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # One torch thread per run: on a loaded 2-core machine, two busy-waiting OpenMP threads per process slow
@@ -45,12 +44,8 @@ RUNS = {
 KILLED = {"accel-killed": ("accel.py", "accel"), "evo-killed": ("paired_evo.py", "evo")}  # script, uninterrupted run
 
 
-def command(script, args):
-    return [sys.executable, os.path.join(ROOT, script), *args]
-
-
 def run(script, args, cwd):
-    return subprocess.run(command(script, args), cwd=cwd, capture_output=True, text=True, timeout=600, env=ENV)
+    return script_runs.run([os.path.join(ROOT, script), *args], cwd, ENV)
 
 
 def only_run_dir(cwd):
@@ -66,7 +61,7 @@ def read_metrics(run_dir):
 def kill_and_resume(script, args, cwd):
     """Start a run, SIGKILL it once it has written 3 metric rows, resume it. Returns (finished before the
     kill, the resumed run's result)."""
-    process = subprocess.Popen(command(script, args), cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV)
+    process = script_runs.start([os.path.join(ROOT, script), *args], cwd, ENV)
     deadline = time.time() + 300
     while time.time() < deadline and process.poll() is None:
         runs = os.path.join(cwd, "runs")

@@ -1,4 +1,4 @@
-"""Every script with `--env carracing`, run as a subprocess for a tiny run (CleanRL's way of testing a
+"""Every script with `--env carracing`, run as a process of its own for a tiny run (CleanRL's way of testing a
 script), with the held-out evaluation on a track file of two Formula-1 tracks cut from the shared data;
 and the bad inputs of the track file: one error line, exit status 2, nothing written."""
 
@@ -7,10 +7,9 @@ from __future__ import annotations
 import csv
 import json
 import os
-import subprocess
-import sys
 
 import pytest
+import script_runs
 import torch
 from conftest import f1_track_file, shared_f1_track_file
 
@@ -32,8 +31,7 @@ SCRIPTS = {
 
 
 def run(script, args, cwd):
-    return subprocess.run([sys.executable, os.path.join(ROOT, script), *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=600, env=ENV)
+    return script_runs.run([os.path.join(ROOT, script), *args], cwd, ENV)
 
 
 @pytest.fixture(scope="module")

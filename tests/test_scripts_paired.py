@@ -1,6 +1,7 @@
-"""paired.py, paired_hient.py and paired_bc.py end to end as subprocesses (CleanRL's way): the run
-directory of every script and mode on both envs, the teacher's logged return against the regret, and per
-script a kill-and-resume round trip that must end exactly where an uninterrupted run ends.
+"""paired.py, paired_hient.py and paired_bc.py end to end, each run a process of its own
+(tests/script_runs.py): the run directory of every script and mode on both envs, the teacher's logged return
+against the regret, and per script a kill-and-resume round trip that must end exactly where an uninterrupted
+run ends.
 
 The runs are independent, so a module fixture plays them two at a time (one torch thread each), the kill
 tests' chains among them, and the tests check their results."""
@@ -11,11 +12,10 @@ import json
 import math
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
+import script_runs
 import torch
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -40,12 +40,8 @@ RUNS = {
 }
 
 
-def command(script, args):
-    return [sys.executable, os.path.join(ROOT, script), *args]
-
-
 def run(script, args, cwd):
-    return subprocess.run(command(script, args), cwd=cwd, capture_output=True, text=True, timeout=600, env=ENV)
+    return script_runs.run([os.path.join(ROOT, script), *args], cwd, ENV)
 
 
 def only_run_dir(cwd):
@@ -72,8 +68,7 @@ def kill_and_resume(script, cwd):
     """Start the script's kill-test run, SIGKILL it once it has logged >= 2 updates (a checkpoint every
     update), then resume it. Returns (metric rows at the kill, whether it had ended, the run directory, the
     resumed run's result)."""
-    process = subprocess.Popen(command(script, KILLED[script]), cwd=cwd, stdout=subprocess.DEVNULL,
-                               stderr=subprocess.DEVNULL, env=ENV)
+    process = script_runs.start([os.path.join(ROOT, script), *KILLED[script]], cwd, ENV)
     deadline = time.time() + 300
     while time.time() < deadline:
         runs = cwd / "runs"

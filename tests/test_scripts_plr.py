@@ -1,15 +1,15 @@
-"""plr.py end to end as a subprocess (CleanRL's way): its three modes, the run directory, bad input, and a
-kill-and-resume round trip that must end exactly where an uninterrupted run ends."""
+"""plr.py end to end, each run a process of its own (tests/script_runs.py): its three modes, the run
+directory, bad input, and a kill-and-resume round trip that must end exactly where an uninterrupted run
+ends."""
 
 import csv
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
+import script_runs
 import torch
 
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "plr.py")
@@ -17,8 +17,8 @@ TINY = ["--num-envs", "4", "--num-steps", "32", "--level-buffer-size", "8", "--e
         "--eval-interval", "2", "--log-interval", "1", "--checkpoint-interval", "1", "--levels-interval", "2"]
 
 
-def run(args, cwd, **kwargs):
-    return subprocess.run([sys.executable, SCRIPT, *args], cwd=cwd, capture_output=True, text=True, timeout=300, **kwargs)
+def run(args, cwd):
+    return script_runs.run([SCRIPT, *args], cwd, timeout=300)
 
 
 def only_run_dir(cwd):
@@ -86,7 +86,7 @@ def test_killed_run_resumes_to_the_same_result(tmp_path):
     killed.mkdir()
     assert run(config, straight).returncode == 0
 
-    process = subprocess.Popen([sys.executable, SCRIPT, *config], cwd=killed, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = script_runs.start([SCRIPT, *config], killed)
     deadline = time.time() + 240
     while time.time() < deadline:
         runs = killed / "runs"

@@ -1,4 +1,4 @@
-"""Every script with `--env walker`, run as a subprocess for a tiny run (CleanRL's way of testing a
+"""Every script with `--env walker`, run as a process of its own for a tiny run (CleanRL's way of testing a
 script), through the final held-out evaluation on the six courses (one episode each); and a bad
 course parameter or name as one clear error."""
 
@@ -7,11 +7,10 @@ from __future__ import annotations
 import csv
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+import script_runs
 
 from envs.walker import WalkerEnv
 from envs.walker.terrain import WalkerLevels
@@ -33,8 +32,7 @@ SCRIPTS = {
 
 
 def run(script, args, cwd):
-    return subprocess.run([sys.executable, os.path.join(ROOT, script), *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=900, env=ENV)
+    return script_runs.run([os.path.join(ROOT, script), *args], cwd, ENV, timeout=900)
 
 
 @pytest.mark.parametrize("name", list(SCRIPTS))

@@ -6,11 +6,10 @@ import ast
 import concurrent.futures
 import csv
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+import script_runs
 import torch
 from torch import nn
 
@@ -277,8 +276,7 @@ def test_paired_updates_equal_plain_nets(tmp_path):
         cwd = tmp_path / mode
         cwd.mkdir()
         env = {**os.environ, "OMP_NUM_THREADS": "1", "CLEANUED_PLAIN_NETS": "1" if mode == "plain" else "0", "PYTHONPATH": ROOT}
-        command = [sys.executable, "-c", COUNTING_FAST_PATHS, os.path.join(ROOT, "paired.py"), *args]
-        result = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+        result = script_runs.run(["-c", COUNTING_FAST_PATHS, os.path.join(ROOT, "paired.py"), *args], cwd, env)
         assert result.returncode == 0, result.stderr
         lines = result.stdout.splitlines()
         announced = sorted(line for line in lines if line.startswith(("MazeStudent: ", "MazeTeacher: ", "warning: ")))

@@ -3,10 +3,9 @@ curriculum's level images."""
 
 import csv
 import os
-import subprocess
-import sys
 
 import pytest
+import script_runs
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -19,8 +18,7 @@ TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timest
     ("paired.py", ["--teacher-conv-channels", "4"], "charts/regret"),
 ])
 def test_runs_write_tensorboard_events(tmp_path, script, extra, scalar):
-    result = subprocess.run([sys.executable, os.path.join(ROOT, script), *TINY, *extra], cwd=tmp_path, capture_output=True,
-                            text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    result = script_runs.run([os.path.join(ROOT, script), *TINY, *extra], tmp_path, {**os.environ, "OMP_NUM_THREADS": "1"})
     assert result.returncode == 0, result.stderr
     (run_dir,) = (tmp_path / "runs").iterdir()
     events = EventAccumulator(str(run_dir), size_guidance={"images": 0})

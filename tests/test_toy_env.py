@@ -8,9 +8,9 @@ import concurrent.futures
 import json
 import os
 import subprocess
-import sys
 
 import pytest
+import script_runs
 
 TESTS = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(TESTS)
@@ -30,7 +30,7 @@ RUNS = {  # script: its options for 2 updates of 4 x 16 steps
 
 
 def run_registered(code: str, cwd) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", REGISTERED + code], cwd=cwd, env=ENV, capture_output=True, text=True, timeout=600)
+    return script_runs.run(["-c", REGISTERED + code], cwd, ENV)
 
 
 def train_and_evaluate(script: str, cwd) -> tuple[subprocess.CompletedProcess, subprocess.CompletedProcess | None, str | None]:
