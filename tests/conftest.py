@@ -1,6 +1,7 @@
 """The tests run single-threaded, one worker process per core (pytest-xdist, `-n auto` in pyproject.toml):
 on cores shared with the scripts they start, torch's default thread pool makes these small workloads many
-times slower. Subprocesses inherit OMP_NUM_THREADS."""
+times slower. Subprocesses inherit OMP_NUM_THREADS; the script runs forked from a test's process
+(tests/script_runs.py) inherit its one thread."""
 
 import os
 
