@@ -27,6 +27,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import traceback
 
@@ -34,6 +35,8 @@ import torch
 
 # What every script imports, and what its first optimizer imports (torch._dynamo).
 PRELOADED = ("torch._dynamo", "tyro", "envs.training_run", "envs.scores", "envs.maze", "envs.carracing", "envs.walker")
+# Tests start runs from several threads: one forks only once the preloading is done and no other is forking.
+FORKING = threading.Lock()
 
 
 @functools.cache
@@ -134,8 +137,9 @@ def start(argv: list[str], cwd, env: dict | None = None, stdout: str = os.devnul
     if not forking():
         with open(stdout, "w") as out, open(stderr, "w") as err:
             return subprocess.Popen([sys.executable, *argv], cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
-    preload()
-    pid = os.fork()
+    with FORKING:
+        preload()
+        pid = os.fork()
     if pid == 0:
         child(argv, cwd, env, stdout, stderr)
     return ForkedRun(pid, [sys.executable, *argv])
