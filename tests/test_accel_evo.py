@@ -1,7 +1,7 @@
 """ACCEL's and PAIRED+Evo's own parts on worked examples (accel.py, paired_evo.py): the choice of the
 levels to edit, the regret scores of Algorithm 2 (plain and flexible), the children's way into a full
 level buffer (each script's copy of Robust PLR's), and the paper's defaults and bad input per script.
-(The edits themselves, `env.mutate`, are tested in test_envs_maze.py; the buffer's replay distribution in
+(The edits themselves, `env.mutate`, are tested in test_envs_maze_levels.py; the buffer's replay distribution in
 test_plr.py.)"""
 
 import numpy as np
