@@ -15,7 +15,7 @@ HEADING = re.compile(r"^#{1,6} +(.+?) *#* *$")
 
 def anchor(heading: str) -> str:
     """GitHub's anchor of a heading: its text without markup, lower case, punctuation dropped, spaces as hyphens."""
-    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading).replace("`", "").replace("*", "")
+    text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading)
     return re.sub(r"[^\w\- ]", "", text.lower()).replace(" ", "-")
 
 
@@ -52,6 +52,7 @@ def test_a_heading_anchor_is_githubs():
     assert anchor("Past the collapse point: 3M and 5.5M steps (in progress)") == \
         "past-the-collapse-point-3m-and-55m-steps-in-progress"
     assert anchor("Level scores (`--score-function`)") == "level-scores---score-function"
+    assert anchor("The [maze](docs/envs.md) and **its** mazes") == "the-maze-and-its-mazes"
     assert anchors("# Notes\n```\n# a comment\n```\n## Notes\n") == {"notes", "notes-1"}
 
 
