@@ -16,7 +16,6 @@ from test_fast_paths import as_torch, assert_fast_step_equals_plain
 
 from envs.evaluate import main
 from envs.maze import MazeEnv, MazeStudent
-from envs.maze.fast_paths import MazeStudentFastPath
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "PYTHONPATH": ROOT, "OMP_NUM_THREADS": "1"}
