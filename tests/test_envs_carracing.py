@@ -564,6 +564,7 @@ def test_student_fast_conv_path_equals_the_definition(monkeypatch):
     """CarRacingStudent's faster conv path (centred pixels, the 1/128 folded into the first conv,
     channels-last) gives the plain definition's outputs, log-probabilities, entropies, values and
     parameter gradients, on a batch of real views and saturated pixels (0 and 255)."""
+    monkeypatch.delenv("CLEANUED_PLAIN_NETS", raising=False)  # the first run takes the faster path
     torch.manual_seed(0)
     student = CarRacingStudent()
     env = make_env(3, training=True)

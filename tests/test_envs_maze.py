@@ -530,11 +530,12 @@ def test_student_features_by_hand():
         assert torch.allclose(features[row, 144:], embed.weight[:, d] + embed.bias, atol=1e-7)
 
 
-def test_student_acting_without_gradient_equals_the_training_path():
+def test_student_acting_without_gradient_equals_the_training_path(monkeypatch):
     # Acting (no gradient) uses cached derived weights: the conv's matrix, the direction's table of gate
     # inputs, the LSTM's transposed weights and the fused actor-critic heads. Same action stream,
     # log-probabilities, values and state as the training path, before and after an optimizer step
     # changes the weights.
+    monkeypatch.delenv("CLEANUED_PLAIN_NETS", raising=False)
     torch.manual_seed(0)
     net = MazeStudent()
     env = MazeEnv("maze", 8, seed=0)
@@ -544,6 +545,7 @@ def test_student_acting_without_gradient_equals_the_training_path():
     optimizer = torch.optim.Adam(net.parameters(), lr=0.01)
     for _ in range(2):
         assert_acting_equals_training(net, obs, state, done, atol=1e-5)
+        assert net.fast_path() is not None and net.fast_path_state.checked  # the acting step took the fast path
         _, logprob, _, value, _ = net.get_action_and_value(obs, state, done)
         (value.square().sum() - logprob.sum()).backward()
         optimizer.step()

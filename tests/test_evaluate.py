@@ -13,7 +13,9 @@ import script_runs
 import torch
 
 import envs
+import envs.evaluate
 from envs.evaluate import main
+from envs.evaluation import evaluate_all
 from envs.runs import import_class
 from envs.video import MAX_FRAMES, capture_videos
 
@@ -49,14 +51,21 @@ def test_a_state_dict_gets_eval_json_a_chart_and_a_gif_per_level(tmp_path):
         assert 1 <= len(frames) <= MAX_FRAMES and min(frames.shape[1:3]) >= 192
 
 
-def test_a_run_directory_gives_its_env_and_the_paired_protagonist(tmp_path, capsys):
+def test_a_run_directory_gives_its_env_and_the_paired_protagonist(tmp_path, capsys, monkeypatch):
     run = tmp_path / "run"
     run.mkdir()
     (run / "args.json").write_text(json.dumps({"env": "maze", "seed": 3, "eval_episodes": 1}))
     protagonist = fresh_student("maze", seed=1)
     torch.save({"protagonist": protagonist.state_dict(), "antagonist": fresh_student("maze", seed=2).state_dict(),
                 "update": 5}, run / "checkpoint.pt")
+    evaluated = []  # the students evaluate_all was given, and the env and seed
+    monkeypatch.setattr(envs.evaluate, "evaluate_all",
+                        lambda student, env, *rest: evaluated.append((student, env, rest[2])) or evaluate_all(student, env, *rest))
     main([str(run), "--levels", "FourRooms", "--no-capture-video"])
+    [(student, env_name, seed)] = evaluated
+    assert (env_name, seed) == ("maze", 3)
+    weights = student.state_dict()
+    assert all(torch.equal(weights[k].cpu(), v) for k, v in protagonist.state_dict().items())  # not the antagonist
     out = run / "evaluation"
     assert sorted(os.listdir(out)) == ["eval.json", "eval.png"]
     assert list(json.loads((out / "eval.json").read_text())) == ["FourRooms", "mean"]

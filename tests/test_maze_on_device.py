@@ -15,6 +15,7 @@ import plr
 from envs.maze.env import FORWARD, LEFT, RIGHT, MazeEnv, MazeStudent
 from envs.maze.levels import MazeLevels, empty_grid
 from envs.maze.on_device import DeviceRollout, MazeTorchEnv, act, observe, rollout_step
+from envs.normalize import ReturnNormalizer
 from test_fast_paths import FIXED_POLICY, student_with_a_fixed_policy
 
 
@@ -305,12 +306,14 @@ def test_on_a_gpu_a_seed_repeats_and_replays_draw_fresh_actions():
     assert not torch.equal(actions[0][0], actions[0][1])
 
 
-def test_the_device_player_is_the_registry_s_and_chosen_on_a_gpu_only():
+def test_the_device_player_is_the_registry_s_and_chosen_on_a_gpu_only(monkeypatch):
     """The maze's REGISTRY entry names DeviceRollout; on a CPU, or with --no-device-rollouts, or with returns
-    normalized, the scripts keep their own rollout (rollouts_on_device gives None)."""
+    normalized, the scripts keep their own rollout (rollouts_on_device gives None); on a GPU otherwise, it
+    is built, as a CUDA graph (the class stood in for here: building it needs a GPU)."""
     import importlib
 
     import envs
+    import envs.maze.on_device
     from envs.runs import rollouts_on_device
 
     module, name = envs.REGISTRY["maze"].device_rollout.split(":")
@@ -319,3 +322,12 @@ def test_the_device_player_is_the_registry_s_and_chosen_on_a_gpu_only():
     env = MazeEnv("maze", 2, seed=0)
     args = SimpleNamespace(env="maze", device_rollouts=True, gamma=0.995, gae_lambda=0.95)
     assert rollouts_on_device(env, MazeStudent(), None, args, torch.device("cpu")) is None
+    gpu = torch.device("cuda")
+    no_device_rollouts = SimpleNamespace(**{**vars(args), "device_rollouts": False})
+    assert rollouts_on_device(env, MazeStudent(), None, no_device_rollouts, gpu) is None
+    assert rollouts_on_device(env, MazeStudent(), None, args, gpu, normalizer=ReturnNormalizer(2, 0.995)) is None
+    built = []
+    monkeypatch.setattr(envs.maze.on_device, "DeviceRollout", lambda *given, **options: built.append((given, options)) or "player")
+    agent = MazeStudent()
+    assert rollouts_on_device(env, agent, None, args, gpu) == "player"
+    assert built == [((env, agent, None, 0.995, 0.95, gpu), {"graph": True})]
