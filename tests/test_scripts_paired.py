@@ -23,7 +23,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # these small runs down by an order of magnitude.
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 TINY = ["--num-envs", "4", "--num-steps", "32", "--total-timesteps", "256", "--teacher-conv-channels", "4",
-        "--eval-episodes", "1", "--eval-interval", "2", "--checkpoint-interval", "1", "--levels-interval", "1"]
+        "--eval-episodes", "1", "--eval-interval", "2", "--checkpoint-interval", "1", "--levels-interval", "1",
+        "--teacher-update-epochs", "3"]  # the students' 5 on the maze: each PPO update with its own epochs, checked below
 HELD_OUT = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
             "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
 LOGGED = ["protagonist_return", "antagonist_return", "teacher_return", "regret", "protagonist_entropy",
@@ -140,6 +141,11 @@ def test_script_writes_a_complete_run(finished, key):
     checkpoint = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)
     assert checkpoint["update"] == 2 and checkpoint["global_step"] == 256
     assert {"protagonist", "antagonist", "teacher", "teacher_optimizer"} <= set(checkpoint)
+    steps = {name: {int(s["step"]) for s in checkpoint[f"{name}_optimizer"]["state"].values()}
+             for name in ("protagonist", "antagonist", "teacher")}  # Adam's steps: one per minibatch of each epoch
+    students = {2 * saved["update_epochs"] * saved["num_minibatches"]}
+    assert steps == {"protagonist": students, "antagonist": students,
+                     "teacher": {2 * 3 * saved["teacher_num_minibatches"]}}, steps
 
     evaluation = json.load(open(os.path.join(run_dir, "eval.json")))
     assert list(evaluation) == HELD_OUT + ["mean"]
