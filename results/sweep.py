@@ -2,7 +2,7 @@
 from the same sweep file.
 
     python -m results.sweep results/sweeps/maze_cpu.toml                   # local, resumable
-    python -m results.sweep results/sweeps/paper_full.toml --cluster slurm
+    python -m results.sweep results/sweeps/paper_maze.toml --cluster slurm
     python -m results.sweep results/sweeps/maze_cpu.toml --collect results/maze
 
 A sweep file (TOML) names its seeds, how many runs go at once, the torch threads of each run, and one
