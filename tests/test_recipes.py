@@ -13,6 +13,9 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
+import torch
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "PYTHONPATH": ROOT, "OMP_NUM_THREADS": "1"}
 LINK = re.compile(r"\[`(\w+)`, ([\w/.]+\.py):(\d+)\]\(\.\./([\w/.]+\.py)#L(\d+)\)")
@@ -106,15 +109,22 @@ def test_a_copy_with_a_new_flag_and_level_score_checks_trains_and_resumes(tmp_pa
     assert "squared_value_loss}" in help_text
     bad = run(["my_plr.py", *TINY, "--score-power", "0"], tmp_path)
     assert bad.returncode == 2 and bad.stderr == "error: --score-power must be positive\n" and not (tmp_path / "runs").exists()
-    trained = run(["my_plr.py", *TINY, "--score-function", "squared_value_loss", "--score-power", "0.5"], tmp_path)
+    trained = run(["my_plr.py", *TINY, "--score-function", "squared_value_loss", "--score-power", "3"], tmp_path)
     assert trained.returncode == 0, trained.stderr[-3000:]
     (name,) = os.listdir(tmp_path / "runs")
     assert name.startswith("maze__robust_plr_svl__")
     run_dir = tmp_path / "runs" / name
     saved = json.loads((run_dir / "args.json").read_text())
-    assert saved["score_power"] == 0.5 and saved["score_function"] == "squared_value_loss"
+    assert saved["score_power"] == 3 and saved["score_function"] == "squared_value_loss"
     with open(run_dir / "metrics.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == 2 and all(float(row["mean_score"]) >= 0 for row in rows)
+    assert len(rows) == 2
+    # The buffer ranks its levels, so a power of the score changes no choice: the same run as the copy's
+    # default (the positive value loss, power 1), its buffer's scores those to the 6th power.
+    plain = run(["my_plr.py", *TINY], tmp_path)
+    assert plain.returncode == 0, plain.stderr[-3000:]
+    (plain_dir,) = (tmp_path / "runs").glob("maze__robust_plr__*")
+    powered, positive = (torch.load(d / "checkpoint.pt", weights_only=False)["buffer"]["scores"] for d in (run_dir, plain_dir))
+    assert positive.max() > 0 and np.allclose(powered, positive**6, rtol=1e-4, atol=0)
     resumed = run(["my_plr.py", "--resume", str(run_dir)], tmp_path)
     assert resumed.returncode == 0 and "resuming" in resumed.stdout, resumed.stderr[-3000:]

@@ -155,9 +155,10 @@ def test_script_writes_a_complete_run(finished, key):
 
 
 def test_teacher_return_is_the_regret(finished):
-    """Catches the teacher rewarded with anything but the regret (a sign flip, another step's or level's
-    value, nothing). The logged teacher return is summed from the rewards the teacher trained on; on the
-    maze, where they are not normalized, it is the logged regret, which this run's students (seed 2) make > 0."""
+    """Catches the teacher rewarded with anything but the regret's total (a sign flip, a scale, another
+    quantity, nothing). The logged teacher return is summed from the rewards the teacher trained on; on the
+    maze, where they are not normalized, it is the logged regret, which this run's students (seed 2) make > 0.
+    Which of the teacher's steps holds the reward is test_ppo_wiring's hand-worked teacher returns."""
     result, cwd = finished["regret"]
     assert result.returncode == 0, result.stderr
     rows = read_metrics(only_run_dir(cwd))
