@@ -225,15 +225,17 @@ def test_each_scores_rank_correlation_with_the_true_regret():
 
 TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "64", "--level-buffer-size", "8", "--total-timesteps", "1536",
         "--eval-episodes", "1", "--eval-interval", "100", "--levels-interval", "100", "--checkpoint-interval", "1"]
-# script, score, the run's default name, its options beyond TINY (PAIRED+Evo's regret is 0 on a level where
-# neither student completes an episode: 256-step rollouts complete some, so that a regret would show)
+# script, score, the run's default name, its options beyond TINY. Learnability is above 0 only on a level
+# with both a solved and a failed episode in one rollout; a failure takes the maze's 250 steps, so its runs
+# play 512-step rollouts (where some levels show it).
 CURATOR_RUNS = {
     "plr-maxmc": ("plr.py", "max_mc", "robust_plr_maxmc", []),
-    "accel-learnability": ("accel.py", "learnability", "accel_learnability", []),
+    "accel-learnability": ("accel.py", "learnability", "accel_learnability", ["--num-steps", "512", "--total-timesteps", "12288"]),
     "evo-pvl": ("paired_evo.py", "positive_value_loss", "paired_evo_pvl", []),
-    "evo-learnability": ("paired_evo.py", "learnability", "paired_evo_learnability", ["--num-steps", "256", "--total-timesteps", "8192", "--seed", "2"]),
+    "evo-learnability": ("paired_evo.py", "learnability", "paired_evo_learnability",
+                         ["--num-steps", "512", "--total-timesteps", "16384", "--seed", "2"]),
 }
-LEARNABILITIES = {k / n * (1 - k / n) for n in range(1, 65) for k in range(n + 1)}  # p(1 - p) of up to 64 episodes
+LEARNABILITIES = {k / n * (1 - k / n) for n in range(1, 513) for k in range(n + 1)}  # p(1 - p) of up to 512 episodes
 
 
 @pytest.mark.parametrize("key", list(CURATOR_RUNS))
@@ -256,6 +258,7 @@ def test_every_curator_logs_every_scores_correlation_per_update(key, tmp_path):
     if score == "learnability":
         buffer = torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=False)["buffer"]
         assert all(any(abs(s - value) < 1e-9 for value in LEARNABILITIES) for s in buffer["scores"])
+        assert max(buffer["scores"]) > 0  # not a buffer of zeros, which any constant score would give
 
 
 def test_a_killed_max_mc_run_resumes_to_the_same_result(tmp_path):
