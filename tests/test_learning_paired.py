@@ -1,5 +1,5 @@
-"""A learning test for PAIRED: paired.py's own teacher rollout, student rollouts, regret, GAE and PPO
-updates, run as the paper's Algorithm 1 loop at a small scale, must make the protagonist better on a
+"""A learning test for PAIRED: paired.py's own teacher rollout, student rollouts, regret, teacher returns
+and PPO updates, run as the paper's Algorithm 1 loop at a small scale, must make the protagonist better on a
 fixed batch of levels (the teacher's levels of the first update). Fails if the students do not learn:
 with a learning rate of 0 the protagonist's policy, and so its seeded evaluation, does not change."""
 
@@ -63,15 +63,13 @@ def test_paired_students_improve_on_the_teachers_levels(one_torch_thread):
                               args.update_epochs, args.num_minibatches, args, update, "cpu")
         level_regret = paired.regret(returns_of["protagonist"], returns_of["antagonist"])
         regrets.append(level_regret.mean())
-        teacher_storage.rewards.zero_()
-        teacher_storage.rewards[-1] = torch.as_tensor(level_regret, dtype=torch.float32)
-        with torch.no_grad():
-            advantages, returns = paired.gae(teacher_storage, torch.zeros(args.num_envs), torch.ones(args.num_envs), args.gamma, args.gae_lambda)
+        advantages, returns = paired.teacher_returns(level_regret, teacher_storage, None, args, "cpu")
         agents["teacher"].train()
         paired.ppo_update(agents["teacher"], optimizers["teacher"], teacher_storage, advantages, returns, args.teacher_ent_coef,
                           teacher_args.update_epochs, teacher_args.num_minibatches, teacher_args, update, "cpu")
     after = mean_return(fixed_levels)
     print(f"protagonist on the first update's levels: {before:.3f} -> {after:.3f}; mean regret {np.mean(regrets):.3f}")
-    # Measured: 0.036 -> 0.124 (seeds 1-4 of torch, numpy and the env: +0.07 to +0.24, 3.3x to 6.7x);
+    # Measured: 0.036 -> 0.124 on one machine, 0.258 on another whose arithmetic gives other last digits
+    # (seeds 1-4 of torch, numpy and the env, on the first: +0.07 to +0.24, 3.3x to 6.7x);
     # with learning rate 0: 0.036 -> 0.036.
     assert after > before + 0.04 and after > 2 * before, (before, after)
