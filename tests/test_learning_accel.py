@@ -76,5 +76,5 @@ def test_accel_with_learning_rate_0_ends_with_the_student_it_started_with(tmp_pa
     """What makes the learning test's `before` honest: the script's first student is `initial_student`."""
     env = MazeEnv("maze", 16, seed=SEED)
     start = initial_student(env).state_dict()
-    end = trained_student(env, run_accel(tmp_path, 0.0, 2)).state_dict()
+    end = trained_student(env, run_accel(tmp_path, 0.0, 1)).state_dict()
     assert all(torch.equal(start[k], end[k]) for k in start)
