@@ -30,9 +30,9 @@ def run_script(script: str, learning_rate: float, args: list[str], cwd) -> str:
     return os.path.join(cwd, "runs", name)
 
 
-def initial_student(env, seed: int = SEED):
+def initial_student(env):
     """The student a script starts from (PAIRED: the protagonist): seeded as the scripts seed it, the first net they build."""
-    torch.manual_seed(seed)
+    torch.manual_seed(SEED)
     return env.Student()
 
 
