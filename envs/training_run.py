@@ -147,7 +147,8 @@ class TrainingRun:
             validation = evaluate_all(agent, args.env, self.env.validation_levels, args.eval_episodes, args.seed, self.device)
             row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
             row["val_return"] = np.mean([r["mean_return"] for r in validation.values()])
-            print("  validation: " + ", ".join(f"{name} {r['solved_rate']:.2f}" for name, r in validation.items()))
+            print("  validation: " + ", ".join(f"{name} solved {r['solved_rate']:.2f} return {r['mean_return']:.1f}"
+                                              for name, r in validation.items()))
         reached = milestones_passed(args.milestones, steps_before, counters["global_step"])
         if last:
             self.milestones_at_end = reached
