@@ -4,6 +4,7 @@ from the same sweep file.
     python -m results.sweep results/sweeps/maze_cpu.toml                   # local, resumable
     python -m results.sweep results/sweeps/paper_maze.toml --cluster slurm
     python -m results.sweep results/sweeps/maze_cpu.toml --collect results/maze
+    python -m results.sweep results/sweeps/maze_cpu.toml --seeds 2 3       # only these of the file's seeds
 
 A sweep file (TOML) names its seeds, how many runs go at once, the torch threads of each run, and one
 command line per experiment:
@@ -28,7 +29,9 @@ up a lane's queue; a run that fails is reported and the rest go on. To stop a sw
 group (`kill -- -PGID`): a run killed by a signal ends its lane, and launching again resumes it. A run in progress holds a lock file (<workdir>/locks/), so a second
 launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv,
 eval.json and eval_<steps>.json (milestones) to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
-plus the final student's weights of seed 1 as agent.pt.
+plus the final student's weights of seed 1 as agent.pt. `--seeds` runs (or collects) only some of the
+file's seeds, e.g. the ones a campaign has still to run on a new machine; the seed that keeps its weights
+stays the file's lowest.
 """
 
 from __future__ import annotations
@@ -249,14 +252,18 @@ def main(argv=None) -> None:
     parser.add_argument("--cluster", choices=("local", "slurm"), default="local", help="where the runs go (default: this machine)")
     parser.add_argument("--workdir", default=".", help="where runs/, logs/ and submitit/ go (default: the current directory)")
     parser.add_argument("--collect", metavar="DEST", help="copy the finished runs' outputs to DEST instead of running")
+    parser.add_argument("--seeds", type=int, nargs="+", metavar="SEED", help="only these of the file's seeds (default: all)")
     parser.add_argument("--dry-run", action="store_true", help="print what would run, and run nothing")
     parser.error = lambda message: fail(message)  # one error line, exit 2
     args = parser.parse_args(argv)
     sweep = load_sweep(args.sweep)
+    if args.seeds and not set(args.seeds) <= set(sweep["seeds"]):
+        fail(f"{args.sweep} has seeds {sweep['seeds']}, not {sorted(set(args.seeds) - set(sweep['seeds']))}")
     workdir = os.path.abspath(args.workdir)
     jobs = [{"experiment": name, "seed": seed, "command": command, "threads": sweep["threads"], "workdir": workdir,
              "timeout_hours": sweep["timeout_hours"]}
-            for seed in sweep["seeds"] for name, command in sweep["experiments"].items()]
+            for seed in sweep["seeds"] if not args.seeds or seed in args.seeds
+            for name, command in sweep["experiments"].items()]
     first_seed = sweep["seeds"][0]
     jobs.sort(key=lambda job: job["seed"] != first_seed and job["experiment"] in sweep["later"])  # stable
     if args.collect:

@@ -198,3 +198,19 @@ def test_the_committed_sweep_files_load(name):
     from results.sweep import load_sweep
 
     assert load_sweep(os.path.join(ROOT, "results", "sweeps", name))["experiments"]
+
+
+def test_seeds_runs_only_those_of_the_file(tmp_path):
+    """--seeds keeps the file's order for the seeds it names (dry run), runs only them, and refuses a seed
+    the file does not have, in one line, before anything is written."""
+    path = sweep_file(tmp_path / "sweep.toml", {"a": ["plr.py", *TINY], "b": ["plr.py", *TINY, "--replay-prob", "0"]},
+                      seeds=(1, 2, 3))
+    order = [line.split(":")[0] for line in sweep(path, "--dry-run", "--seeds", "3", "2").stdout.splitlines()]
+    assert order == ["a seed 2", "b seed 2", "a seed 3", "b seed 3"]
+    refused = sweep(path, "--workdir", str(tmp_path), "--seeds", "2", "4")
+    assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
+        f"error: {path} has seeds [1, 2, 3], not [4]"], refused.stderr
+    assert not (tmp_path / "runs").exists()
+    result = sweep(path, "--workdir", str(tmp_path), "--seeds", "2")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sorted(run.name.rsplit("__", 1)[0] for run in (tmp_path / "runs").iterdir()) == ["maze__a__2", "maze__b__2"]
