@@ -17,22 +17,23 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SEED = 1
 # 16 copies x 128 steps on the CPU; one cheap validation and final evaluation (an episode per level), no
 # checkpoint or level image before the last update.
-SMALL = ["--env", "maze", "--seed", str(SEED), "--num-envs", "16", "--num-steps", "128",
+SMALL = ["--env", "maze", "--num-envs", "16", "--num-steps", "128",
          "--eval-episodes", "1", "--eval-interval", "1000", "--checkpoint-interval", "1000", "--levels-interval", "1000", "--no-cuda"]
 STEPS_PER_UPDATE = 16 * 128
 
 
-def run_script(script: str, learning_rate: float, args: list[str], cwd) -> str:
-    """Runs `python script` at the small setting with this learning rate and `args` in cwd; its run directory."""
-    result = script_runs.run([os.path.join(ROOT, script), *SMALL, "--learning-rate", str(learning_rate), *args], cwd)
+def run_script(script: str, learning_rate: float, args: list[str], cwd, seed: int = SEED) -> str:
+    """Runs `python script` at the small setting with this learning rate, seed and `args` in cwd; its run directory."""
+    command = [os.path.join(ROOT, script), *SMALL, "--seed", str(seed), "--learning-rate", str(learning_rate), *args]
+    result = script_runs.run(command, cwd)
     assert result.returncode == 0, result.stderr
     (name,) = os.listdir(os.path.join(cwd, "runs"))
     return os.path.join(cwd, "runs", name)
 
 
-def initial_student(env):
+def initial_student(env, seed: int = SEED):
     """The student a script starts from (PAIRED: the protagonist): seeded as the scripts seed it, the first net they build."""
-    torch.manual_seed(SEED)
+    torch.manual_seed(seed)
     return env.Student()
 
 

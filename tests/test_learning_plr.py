@@ -5,7 +5,8 @@ started with, and the two evaluations are the same (tests/learning_runs.py).
 
 The setting is small: 16 copies x 128 steps, a 64-level buffer, learning rate 3e-3, 60 updates (about half
 of them replays, the others new levels only scored); the rest is the paper's maze Robust PLR. The measure:
-200 first episodes on the maze's random levels (0-60 walls), drawn from a fixed evaluation seed."""
+200 first episodes on the maze's random levels (0-60 walls), drawn from a fixed evaluation seed, averaged
+over three training seeds."""
 
 import csv
 import os
@@ -14,18 +15,28 @@ from learning_runs import STEPS_PER_UPDATE, initial_student, random_maze_return,
 
 from envs.maze import MazeEnv
 
+SEEDS = (1, 2, 3)
+
 
 def test_robust_plr_student_learns_to_reach_the_goal(tmp_path):
-    env = MazeEnv("maze", 16, seed=1)
-    before = random_maze_return(initial_student(env), env)
-    run_dir = run_script("plr.py", 3e-3, ["--level-buffer-size", "64", "--total-timesteps", str(60 * STEPS_PER_UPDATE)], tmp_path)
-    after = random_maze_return(trained_student(env, run_dir), env)
-    print(f"student on random mazes: {before:.3f} -> {after:.3f}")
-    with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert all(row["trained"] == row["replay"] for row in rows) and 20 <= sum(row["trained"] == "1" for row in rows) <= 40
-    # measured: 0.074 -> 0.199 (seeds 2 and 3: 0.073 -> 0.253 and 0.342)
-    assert after > before + 0.08 and after > 2 * before, (before, after)
+    befores, afters = [], []
+    for seed in SEEDS:
+        env = MazeEnv("maze", 16, seed=1)
+        befores.append(random_maze_return(initial_student(env, seed), env))
+        cwd = tmp_path / str(seed)
+        cwd.mkdir()
+        run_dir = run_script("plr.py", 3e-3, ["--level-buffer-size", "64", "--total-timesteps", str(60 * STEPS_PER_UPDATE)], cwd, seed)
+        afters.append(random_maze_return(trained_student(env, run_dir), env))
+        with open(os.path.join(run_dir, "metrics.csv"), newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert all(row["trained"] == row["replay"] for row in rows) and 20 <= sum(row["trained"] == "1" for row in rows) <= 40
+    print("student on random mazes, seeds " + ", ".join(f"{b:.3f} -> {a:.3f}" for b, a in zip(befores, afters)))
+    before, after = sum(befores) / len(SEEDS), sum(afters) / len(SEEDS)
+    # One seed's gain varies with the machine's floating-point kernels (seed 1 ends at 0.199 on one machine,
+    # 0.119 and 0.146 on two others), the mean over seeds less so. Measured, before about 0.073 everywhere,
+    # after (seeds 1, 2, 3): 0.265 (0.199, 0.253, 0.342), 0.224 (0.119, 0.246, 0.308), 0.198 (0.146, 0.238,
+    # 0.211). The bar lies about halfway between the student it starts from and the lowest of these.
+    assert after > before + 0.06 and after > 1.8 * before, (befores, afters)
 
 
 def test_plr_with_learning_rate_0_ends_with_the_student_it_started_with(tmp_path):
