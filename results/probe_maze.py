@@ -69,7 +69,7 @@ def main(argv=None) -> None:
     env = MazeEnv("maze", 1, seed=1)
     sets = level_sets(env)
     students = []  # (label, run directory, metrics)
-    for label, directory, runs in (("10M", args.directory, load_runs(args.directory)), ("long", long_directory, load_long_runs(long_directory))):
+    for directory, runs in ((args.directory, load_runs(args.directory)), (long_directory, load_long_runs(long_directory))):
         for experiment, seeds in runs.items():
             if 1 in seeds and os.path.isfile(os.path.join(directory, experiment, "1", "agent.pt")):
                 steps = int(seeds[1]["metrics"][-1]["env_steps"])
