@@ -1,14 +1,15 @@
 """PAIRED+Evo: PAIRED's two students and regret, with ACCEL's level editor in place of a learned teacher.
 
 The paper's third fix (Section 4.2, Algorithm 2): the teacher network is replaced by search. New-level
-updates: random levels are played by protagonist and antagonist without gradient and scored by the
-regret U(A) - U(P); replay updates: both students train on levels from a buffer of high-regret levels,
-then the replayed levels are edited, the children evaluated by both students without gradient, scored by
-regret and offered to the buffer. `--flexible` gives FlexPAIRED+Evo (flexible regret, no fixed roles).
+updates: new levels (on the maze ACCEL's empty rooms) are played by protagonist and antagonist without
+gradient and scored by the regret U(A) - U(P); replay updates: both students train on levels from a
+buffer of high-regret levels, then the replayed levels are edited, the children evaluated by both
+students without gradient, scored by regret and offered to the buffer. `--flexible` gives FlexPAIRED+Evo (flexible regret, no fixed roles).
 The behavioural-cloning term of PAIRED+BC and the entropy bonus are options, so each row of the paper's
 Appendix C ("Combining it all") is one command:
 
-    python paired_evo.py --env maze                                                  # PAIRED+Evo
+    python paired_evo.py --env maze                                                  # PAIRED+Evo, from empty rooms
+    python paired_evo.py --env maze --generator random                               # from DR levels (paired_evo_random)
     python paired_evo.py --env maze --flexible                                       # FlexPAIRED+Evo
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10                  # PAIRED+Evo+UniBC
     python paired_evo.py --env maze --bc-coef 0.01 --bc-interval 10 --student-ent-coef 0.005  # +UniBC+HiEnt
@@ -119,17 +120,18 @@ class Args:
     """levels kept in the buffer"""
     temperature: float = 0.3
     """rank prioritization temperature T: weight (1/rank)^(1/T)"""
-    staleness_coef: float = 0.5
+    staleness_coef: float = 0.3
     """rho, weight of staleness in the replay distribution"""
     score_function: Literal["regret", "positive_value_loss", "max_mc", "learnability"] = "regret"
     """a level's score: the regret U(A) - U(P) (the paper's), or the protagonist's positive value loss, MaxMC
     (JaxUED's) or learnability (SFL's), as plr.py's --score-function"""
 
     # Editing
-    generator: Literal["random", "empty", "easy", "sketch"] = "random"
-    """new levels: random (the DR generator, maze default), empty rooms (maze), easy (walker default) or sketch
-    (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random tracks
-    are continuous and cannot be edited)"""
+    generator: Literal["random", "empty", "easy", "sketch"] = "empty"
+    """new levels: empty rooms (maze default, ACCEL's: goal and agent only, the editor grows them), random
+    (the DR generator's levels; the run's name ends in _random), easy (walker default) or sketch
+    (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random
+    tracks are continuous and cannot be edited)"""
     num_edits: int = 5
     """random edits per child level"""
     edit_levels: Literal["easy", "batch"] = "easy"
@@ -154,14 +156,15 @@ class Args:
     """updates between PNGs of the buffer's highest-scoring levels"""
 
 
-# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate).
+# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate; on the maze,
+# ACCEL's empty rooms and staleness 0.3; docs/defaults.md lists each value's source).
 # Evo was not run on CarRacing in the paper: its CarRacing defaults are PLR's buffer with the maze's
 # staleness, and a mutation that moves 3 control points to neighbouring cells.
 PAPER_DEFAULTS = {
     "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
                  gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, value_loss="clipped",
                  normalize_returns=False, bc_coef=0.0, bc_interval=10, level_buffer_size=4000, temperature=0.3,
-                 staleness_coef=0.5, num_edits=5, generator="random", eval_episodes=100),
+                 staleness_coef=0.3, num_edits=5, generator="empty", eval_episodes=100),
     "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
                       normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=10000, temperature=0.3,
@@ -176,7 +179,8 @@ REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # P
 FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
 
 # The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float, "score_function": str}
+DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float, "score_function": str,
+                    "generator": str}
 
 
 def paper_args(env: str = "maze", **options) -> Args:
@@ -191,6 +195,8 @@ def paper_args(env: str = "maze", **options) -> Args:
         args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
         if args.score_function != "regret":
             args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
+        if args.generator != PAPER_DEFAULTS.get(env, {}).get("generator", args.generator):
+            args.exp_name += "_" + args.generator  # paired_evo_random: new levels from the DR generator
     return args
 
 

@@ -29,7 +29,7 @@ from against import ROOT, USER_ENVIRONMENT, copy_of_commit
 
 # (label, a committed run directory of results/ holding agent.pt and args.json)
 CASES = [
-    ("maze, ACCEL seed 1 at 10M steps", "results/maze/accel/1"),
+    ("maze, ACCEL seed 1 at 10M steps", "results/maze/accel_random/1"),
     ("maze, DR seed 1 at 10M steps", "results/maze/dr/1"),
 ]
 # envs.evaluate's main, with its call of evaluate_all timed (printed as "evaluation seconds: S")

@@ -1,7 +1,7 @@
 """Evaluate a saved student on the held-out levels: eval.json, a per-level bar chart and GIFs.
 
     python -m envs.evaluate runs/maze__accel__1__1700000000           # a run directory
-    python -m envs.evaluate results/maze/accel/1/agent.pt --env maze  # a student's weights alone
+    python -m envs.evaluate results/maze/accel_random/1/agent.pt --env maze  # a student's weights alone
 
 A run directory holds args.json and checkpoint.pt (the student is its "agent", or the PAIRED scripts'
 "protagonist") or agent.pt (the student's state dict). The student is rebuilt as the class its args.json

@@ -25,7 +25,8 @@ import numpy as np  # noqa: E402
 EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired": "PAIRED", "paired_hient": "PAIRED+HiEnt",
                "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo", "paired_bibc_hient": "PAIRED+BiBC+HiEnt",
                "robust_plr_maxmc": "Robust PLR (MaxMC)", "robust_plr_learnability": "Robust PLR (learnability)",
-               "paired_evo_unibc": "PAIRED+Evo+UniBC"}
+               "paired_evo_unibc": "PAIRED+Evo+UniBC", "accel_random": "ACCEL (random levels)",
+               "paired_evo_random": "PAIRED+Evo (random levels)", "paired_evo_unibc_random": "PAIRED+Evo+UniBC (random levels)"}
 SMOOTHING = 25  # updates in the trailing mean of the training curves
 
 

@@ -183,15 +183,18 @@ def test_children_fill_free_room_first():
 # ---------------------------------------------------------------------------------------------------
 def test_accel_maze_defaults_are_the_papers():
     args = accel.resolve_args(accel.paper_args(env="maze"))
-    assert (args.replay_prob, args.level_buffer_size, args.temperature, args.staleness_coef, args.num_edits) == (0.8, 4000, 0.3, 0.5, 5)
+    assert (args.replay_prob, args.level_buffer_size, args.temperature, args.staleness_coef, args.num_edits) == (0.8, 4000, 0.3, 0.3, 5)
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda) == (32, 256, 1e-4, 0.995, 0.95)
-    assert (args.generator, args.edit_levels, args.min_fill_ratio) == ("random", "easy", 0.5)
+    assert (args.generator, args.edit_levels, args.min_fill_ratio, args.exp_name) == ("empty", "easy", 0.5, "accel")
+    assert accel.paper_args(env="maze", generator="random").exp_name == "accel_random"  # the variant keeps its own name
 
 
 def test_paired_evo_maze_defaults_are_the_papers():
     args = paired_evo.resolve_args(paired_evo.paper_args(env="maze"))
     assert (args.replay_prob, args.level_buffer_size, args.bc_coef, args.flexible) == (0.5, 4000, 0.0, False)
-    assert (args.temperature, args.staleness_coef, args.num_edits, args.student_ent_coef) == (0.3, 0.5, 5, 0.0)
+    assert (args.temperature, args.staleness_coef, args.num_edits, args.student_ent_coef) == (0.3, 0.3, 5, 0.0)
+    assert (args.generator, args.exp_name) == ("empty", "paired_evo")
+    assert paired_evo.paper_args(env="maze", generator="random", bc_coef=0.01).exp_name == "paired_evo_unibc_random"
     flexible = paired_evo.resolve_args(paired_evo.paper_args(env="maze", flexible=True))
     assert (flexible.replay_prob, flexible.level_buffer_size, flexible.bc_coef) == (0.9, 4000, 0.0)
     # an explicit replay probability wins over either default

@@ -35,11 +35,12 @@ HELD_OUT = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2",
 # key: (script, flags, the header line's start, the run's default experiment name)
 RUNS = {
     "accel": ("accel.py", AT_END, "ACCEL on maze", "accel"),
-    "accel-empty": ("accel.py", [*OFTEN, "--generator", "empty"], "ACCEL on maze", "accel"),
-    "evo": ("paired_evo.py", AT_END, "PAIRED+Evo on maze", "paired_evo"),
+    "accel-random": ("accel.py", [*OFTEN, "--generator", "random"], "ACCEL on maze", "accel_random"),
+    # (seed 2: at replay rate 0.5, seed 1 replays once in these 6 updates, too few to check the replay rules)
+    "evo": ("paired_evo.py", [*AT_END, "--seed", "2"], "PAIRED+Evo on maze", "paired_evo"),
     "evo-flex": ("paired_evo.py", [*OFTEN, "--flexible"], "FlexPAIRED+Evo on maze", "flexpaired_evo"),
-    "evo-bibc": ("paired_evo.py", [*AT_END, "--bc-coef", "0.1", "--bc-interval", "2", "--bidirectional"], "PAIRED+Evo+BiBC on maze",
-                 "paired_evo_bibc"),
+    "evo-bibc": ("paired_evo.py", [*AT_END, "--seed", "2", "--bc-coef", "0.1", "--bc-interval", "2", "--bidirectional"],
+                 "PAIRED+Evo+BiBC on maze", "paired_evo_bibc"),
 }
 KILLED = {"accel-killed": ("accel.py", "accel"), "evo-killed": ("paired_evo.py", "evo")}  # script, uninterrupted run
 
@@ -94,7 +95,8 @@ def test_script_writes_a_complete_run(finished, key):
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith(header), result.stdout[:200]
     run_dir = only_run_dir(cwd)
-    assert os.path.basename(run_dir).startswith(f"maze__{name}__1__")
+    seed = flags[flags.index("--seed") + 1] if "--seed" in flags else "1"
+    assert os.path.basename(run_dir).startswith(f"maze__{name}__{seed}__")
     rows = read_metrics(run_dir)
     last = len(rows)
     for name in ("args.json", "metrics.csv", "checkpoint.pt", f"levels_{last}.png", "eval.json", "curves.png"):
@@ -105,8 +107,9 @@ def test_script_writes_a_complete_run(finished, key):
 
     saved = json.load(open(os.path.join(run_dir, "args.json")))
     assert (saved["num_envs"], saved["num_steps"], saved["level_buffer_size"]) == (NUM_ENVS, NUM_STEPS, 8)
-    assert saved["generator"] == ("empty" if "--generator" in flags else "random")
-    assert saved["replay_prob"] == {"accel": 0.8, "accel-empty": 0.8, "evo": 0.5, "evo-flex": 0.9, "evo-bibc": 0.5}[key]
+    assert saved["generator"] == ("random" if "--generator" in flags else "empty")  # the maze's default: empty rooms
+    assert saved["staleness_coef"] == 0.3
+    assert saved["replay_prob"] == {"accel": 0.8, "accel-random": 0.8, "evo": 0.5, "evo-flex": 0.9, "evo-bibc": 0.5}[key]
 
     evaluation = json.load(open(os.path.join(run_dir, "eval.json")))
     assert list(evaluation) == HELD_OUT + ["mean"]
@@ -170,9 +173,13 @@ def test_accel_trains_on_replay_updates_only(finished):
         assert (r["policy_loss"] != "" and r["entropy"] != "") == (r["replay"] == "1")
 
 
-def test_generator_empty_starts_from_empty_rooms(finished):
-    empty = read_metrics(only_run_dir(finished["accel-empty"][1]))
-    random = read_metrics(only_run_dir(finished["accel"][1]))
+def test_the_default_generator_starts_from_empty_rooms(finished):
+    """ACCEL's and PAIRED+Evo's maze default plays empty rooms on its first new-level update, as the
+    reference's ACCEL does; --generator random still plays the DR generator's levels."""
+    empty = read_metrics(only_run_dir(finished["accel"][1]))
+    random = read_metrics(only_run_dir(finished["accel-random"][1]))
+    evo = read_metrics(only_run_dir(finished["evo"][1]))
+    assert float(evo[0]["walls"]) == 0 and evo[0]["replay"] == "0"
     assert float(empty[0]["walls"]) == 0 and float(empty[0]["path_length"]) >= 1 and empty[0]["passable"] == "1"
     assert all(float(r["walls"]) == 0 for r in empty if r["replay"] == "0")
     # replayed levels grow from empty rooms by at most 5 edits per generation
