@@ -115,7 +115,7 @@ class Args:
     the level minus the value) or learnability (SFL's: p(1 - p), p the share of episodes solved)"""
 
     # Editing
-    generator: Literal["random", "empty", "easy", "sketch"] = "empty"
+    generator: Literal["random", "empty", "easy", "sketch"] = "random"
     """new levels: empty rooms (maze default: goal and agent only, the editor grows them), random (the DR
     generator's levels; the run is named accel_random), easy (walker default) or sketch (carracing
     default: 12 random sketch cells, the reference's random teacher; carracing's random tracks are
@@ -148,7 +148,8 @@ class Args:
 # files run them (docs/defaults.md lists each value's source). On the maze, ACCEL starts from empty rooms
 # (the ACCEL paper's setup, which the paper takes) with staleness 0.3.
 # ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
-# replay rate and staleness, and a mutation that moves 3 control points to neighbouring cells.
+# replay rate, the walker's staleness, and a mutation that moves 3 control points to neighbouring cells.
+# Nor on 25 blocks: maze25 takes the 0-60 maze's ACCEL.
 PAPER_DEFAULTS = {
     "maze": dict(gradient_updates=20_000, total_timesteps=0, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
                  gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, value_loss="clipped",

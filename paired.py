@@ -129,7 +129,7 @@ PAPER_DEFAULTS = {
                       gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
                       value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=10),
     "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.01,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
                    value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])

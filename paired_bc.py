@@ -11,7 +11,7 @@ blocks 0.1, 25, 0.005, 0.05). Everything else is PAIRED (Algorithm 1).
 
     python paired_bc.py --env maze                  # PAIRED+UniBC+HiEnt
     python paired_bc.py --env maze --bidirectional  # PAIRED+BiBC+HiEnt
-    python paired_bc.py --env maze --student-ent-coef 0 --teacher-ent-coef 0  # PAIRED+UniBC
+    python paired_bc.py --env maze25 --no-hient     # PAIRED+UniBC: BC with PAIRED's entropies (paired_unibc)
     OMP_NUM_THREADS=1 python paired_bc.py --env maze --seed 2   # beside other runs on the same cores: one thread each
 
 The env (`--env`, any of envs.REGISTRY) is used only through the interface in envs/interface.py, which a
@@ -93,6 +93,9 @@ class Args:
     """the KL term is added on every K-th update only"""
     bidirectional: bool = False
     """BiBC: the antagonist also clones the protagonist (default: UniBC, protagonist only)"""
+    hient: bool = True
+    """the paper's BC entropies (UniBC+HiEnt, BiBC+HiEnt); --no-hient keeps PAIRED's (the paper's UniBC and
+    BiBC columns on maze 25; the run is named paired_unibc or paired_bibc)"""
     teacher_update_epochs: int = 5
     """PPO epochs per update of the teacher"""
     teacher_num_minibatches: int = 1
@@ -145,17 +148,23 @@ PAPER_DEFAULTS = {
                    value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100, bc_coef=0.1, bc_interval=10),
 }
 PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"], teacher_ent_coef=0.05, bc_coef=0.1, bc_interval=25)
+# BC without HiEnt (--no-hient) keeps PAIRED's entropies of the env (paired.py's defaults).
+PAIRED_ENTROPIES = {"maze": dict(student_ent_coef=0.0, teacher_ent_coef=0.0), "maze25": dict(student_ent_coef=0.0, teacher_ent_coef=0.0),
+                    "carracing": dict(student_ent_coef=0.0, teacher_ent_coef=0.0), "walker": dict(student_ent_coef=1e-3, teacher_ent_coef=0.0)}
 
 # The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"bidirectional": bool}
+DEFAULT_DECIDING = {"bidirectional": bool, "hient": bool}
 
 
 def paper_args(env: str = "maze", **options) -> Args:
-    """The paper's settings for `env`, then `options` (the command line's defaults). A BiBC run is named
-    paired_bibc_hient, so that it never merges with a UniBC one."""
-    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
-    if "exp_name" not in options and args.bidirectional:
-        args.exp_name = "paired_bibc_hient"
+    """The paper's settings for `env`, then `options` (the command line's defaults). A run is named for its
+    variant, so that seeds never merge across them: paired_bc_hient (UniBC+HiEnt), paired_bibc_hient,
+    paired_unibc and paired_bibc (--no-hient)."""
+    entropies = {} if options.get("hient", True) else PAIRED_ENTROPIES.get(env, {})
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **entropies, **options})
+    if "exp_name" not in options:
+        args.exp_name = {(False, True): "paired_bc_hient", (True, True): "paired_bibc_hient",
+                         (False, False): "paired_unibc", (True, False): "paired_bibc"}[args.bidirectional, args.hient]
     return args
 
 

@@ -127,7 +127,7 @@ class Args:
     (JaxUED's) or learnability (SFL's), as plr.py's --score-function"""
 
     # Editing
-    generator: Literal["random", "empty", "easy", "sketch"] = "empty"
+    generator: Literal["random", "empty", "easy", "sketch"] = "random"
     """new levels: empty rooms (maze default, ACCEL's: goal and agent only, the editor grows them), random
     (the DR generator's levels; the run's name ends in _random), easy (walker default) or sketch
     (carracing default: 12 random sketch cells, the reference's random teacher; carracing's random

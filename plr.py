@@ -11,6 +11,7 @@ too); `--replay-prob 0` gives DR (every update trains on fresh random levels; no
     python plr.py --env maze --no-robust     # PLR
     python plr.py --env maze --replay-prob 0 # DR
     python plr.py --env maze --score-function max_mc  # Robust PLR scored by MaxMC (run name robust_plr_maxmc)
+    python plr.py --env maze25               # Robust PLR on 25 blocks: entropy 0.01, T 0.1, MaxMC (the reference's)
     python plr.py --env carracing            # Robust PLR on CarRacing (held out: the F1 tracks)
     python plr.py --env walker               # Robust PLR on BipedalWalker terrain
     OMP_NUM_THREADS=1 python plr.py --env maze --seed 2   # beside other runs on the same cores: one thread each
@@ -122,7 +123,8 @@ class Args:
     """replay only once the buffer holds at least this share of its size"""
     score_function: Literal["positive_value_loss", "max_mc", "learnability"] = "positive_value_loss"
     """a level's score: the positive value loss (the paper's), MaxMC (JaxUED's: the highest return reached on
-    the level minus the value) or learnability (SFL's: p(1 - p), p the share of episodes solved)"""
+    the level minus the value; maze25's default, the reference's grounded signed value loss) or
+    learnability (SFL's: p(1 - p), p the share of episodes solved)"""
 
     # Logging, evaluation, checkpoints
     log_interval: int = 10
@@ -157,7 +159,9 @@ PAPER_DEFAULTS = {
                    normalize_returns=True, replay_prob=0.5, level_buffer_size=1000, temperature=0.1,
                    staleness_coef=0.5, eval_episodes=100),
 }
-PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+# Maze 25 blocks as the reference's 25_blocks configurations run it (mg_25b_dr.json, mg_25b_robust_plr.json):
+# entropy 0.01 (DR too), temperature 0.1, and its grounded signed value loss, which is MaxMC.
+PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"], ent_coef=0.01, temperature=0.1, score_function="max_mc")
 
 # The switches whose value changes other options' defaults: the command line reads them first.
 DEFAULT_DECIDING = {"replay_prob": float, "robust": bool, "score_function": str}
@@ -167,13 +171,13 @@ def paper_args(env: str = "maze", **options) -> Args:
     """The paper's settings for `env`, then `options` (the command line's defaults). CarRacing's PLR draws
     new levels as sketches (the reference PLR's random teacher), its DR continuous random tracks. A run is
     named for its variant, robust_plr, plr (--no-robust) or dr (--replay-prob 0), and a score other than
-    the paper's (robust_plr_maxmc, plr_learnability...)."""
+    the env's default (robust_plr_maxmc, plr_learnability...)."""
     args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
     if "generator" not in options:
         args.generator = "sketch" if env == "carracing" and args.replay_prob > 0 else "random"
     if "exp_name" not in options:
         args.exp_name = "dr" if args.replay_prob == 0 else "robust_plr" if args.robust else "plr"
-        if args.score_function != "positive_value_loss":
+        if args.score_function != PAPER_DEFAULTS.get(env, {}).get("score_function", "positive_value_loss"):
             args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
     return args
 

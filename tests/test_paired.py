@@ -365,9 +365,11 @@ def test_bad_input_is_one_error_line_status_2_nothing_written(bad_input_runs, ca
     (paired_hient, "maze25", dict(student_ent_coef=0.005, teacher_ent_coef=0.01)),
     (paired_bc, "maze", dict(bc_coef=0.01, bc_interval=5, student_ent_coef=0.005, teacher_ent_coef=0.005)),
     (paired_bc, "maze25", dict(bc_coef=0.1, bc_interval=25, student_ent_coef=0.005, teacher_ent_coef=0.05)),
+    (paired_bc, "maze25", dict(hient=False, bc_coef=0.1, bc_interval=25, student_ent_coef=0.0, teacher_ent_coef=0.0, exp_name="paired_unibc")),
 ])
 def test_paper_defaults_per_script_and_env(module, env, expected):
-    args = module.resolve_args(module.paper_args(env=env))
+    switches = {"hient": expected["hient"]} if "hient" in expected else {}
+    args = module.resolve_args(module.paper_args(env=env, **switches))
     assert {k: getattr(args, k) for k in expected} == expected
     # The two mazes share the paper's PPO settings (its hyperparameter table) in every script.
     assert (args.num_envs, args.num_steps, args.learning_rate, args.gamma, args.gae_lambda, args.update_epochs,
@@ -375,12 +377,13 @@ def test_paper_defaults_per_script_and_env(module, env, expected):
     assert not getattr(args, "bidirectional", False)
 
 
-@pytest.mark.parametrize("module", [paired, paired_hient, paired_bc])
-def test_walker_teacher_takes_the_references_ppo_settings(module):
-    """The reference's walker PAIRED teacher: 8 epochs, 4 minibatches, entropy 0.01 (students: 5 and 32);
-    the maze teacher trains as its students (5 epochs, 1 minibatch); value loss smooth L1 on the walker."""
+@pytest.mark.parametrize("module, teacher_ent_coef", [(paired, 0.0), (paired_hient, 0.01), (paired_bc, 0.01)])
+def test_walker_teacher_takes_the_references_ppo_settings(module, teacher_ent_coef):
+    """The reference's walker PAIRED teacher: 8 epochs, 4 minibatches (students: 5 and 32); its entropy the
+    paper's (PAIRED 0.0; the reference's 0.01 for HiEnt, Appendix C's 0.01 for BC); the maze teacher
+    trains as its students (5 epochs, 1 minibatch); value loss smooth L1 on the walker."""
     args = module.resolve_args(module.paper_args(env="walker"))
-    assert (args.teacher_update_epochs, args.teacher_num_minibatches, args.teacher_ent_coef) == (8, 4, 0.01)
+    assert (args.teacher_update_epochs, args.teacher_num_minibatches, args.teacher_ent_coef) == (8, 4, teacher_ent_coef)
     assert (args.update_epochs, args.num_minibatches, args.value_loss) == (5, 32, "huber")
     args = module.resolve_args(module.paper_args(env="maze"))
     assert (args.teacher_update_epochs, args.teacher_num_minibatches) == (5, 1)

@@ -227,13 +227,14 @@ TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "64", "--level-buffer
         "--eval-episodes", "1", "--eval-interval", "100", "--levels-interval", "100", "--checkpoint-interval", "1"]
 # script, score, the run's default name, its options beyond TINY. Learnability is above 0 only on a level
 # with both a solved and a failed episode in one rollout; a failure takes the maze's 250 steps, so its runs
-# play 512-step rollouts (where some levels show it).
+# play 512-step rollouts (where some levels show it). PAIRED+Evo's runs start from random levels: its
+# default empty rooms replay too late for runs this short.
 CURATOR_RUNS = {
     "plr-maxmc": ("plr.py", "max_mc", "robust_plr_maxmc", []),
     "accel-learnability": ("accel.py", "learnability", "accel_learnability", ["--num-steps", "512", "--total-timesteps", "12288"]),
-    "evo-pvl": ("paired_evo.py", "positive_value_loss", "paired_evo_pvl", []),
-    "evo-learnability": ("paired_evo.py", "learnability", "paired_evo_learnability",
-                         ["--num-steps", "512", "--total-timesteps", "16384", "--seed", "2"]),
+    "evo-pvl": ("paired_evo.py", "positive_value_loss", "paired_evo_pvl_random", ["--generator", "random"]),
+    "evo-learnability": ("paired_evo.py", "learnability", "paired_evo_learnability_random",
+                         ["--num-steps", "512", "--total-timesteps", "16384", "--seed", "2", "--generator", "random"]),
 }
 LEARNABILITIES = {k / n * (1 - k / n) for n in range(1, 513) for k in range(n + 1)}  # p(1 - p) of up to 512 episodes
 
