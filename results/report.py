@@ -7,7 +7,9 @@ The entry point of the reports: it reads the runs in DIR with results/report_com
 the report of their env, the runs' own (their args.json): the maze's is results/report_maze.py,
 CarRacing's and the walker's results/report_continuous.py. A long/ folder in DIR, of runs evaluated at
 milestones (DIR/long/<experiment>/<seed>/eval_<steps>.json), is reported into itself by
-results/report_milestones.py. No report module imports this one.
+results/report_milestones.py. A campaign's folder under results/ also rewrites results/summary.md, the table of
+every campaign's numbers beside the paper's (results/report_summary.py).
+No report module imports this one.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from results import report_continuous, report_maze, report_milestones
+from results import report_continuous, report_maze, report_milestones, report_summary
 from results.report_common import env_of, fail, load_runs
 
 
@@ -36,6 +38,8 @@ def main(argv=None) -> None:
     long_runs = os.path.join(args.directory, "long")
     if os.path.isdir(long_runs):
         report_milestones.write_report(long_runs, runs, env)
+    if os.path.realpath(os.path.dirname(os.path.abspath(args.directory))) == os.path.realpath(report_summary.RESULTS):
+        report_summary.write_summary()
 
 
 if __name__ == "__main__":

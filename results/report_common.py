@@ -28,6 +28,10 @@ EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired
                "paired_evo_unibc": "PAIRED+Evo+UniBC", "accel_random": "ACCEL (random levels)",
                "paired_evo_random": "PAIRED+Evo (random levels)", "paired_evo_unibc_random": "PAIRED+Evo+UniBC (random levels)"}
 SMOOTHING = 25  # updates in the trailing mean of the training curves
+# The published numbers every report compares with, each with its source: the one file that holds them.
+PAPER_NUMBERS_FILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "paper_numbers.json")
+with open(PAPER_NUMBERS_FILE) as _file:
+    PAPER_NUMBERS = json.load(_file)
 
 
 def fail(message: str) -> None:

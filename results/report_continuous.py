@@ -30,36 +30,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from envs.evaluation import aggregate, bootstrap_interval
-from results.report_common import EXPERIMENTS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
+from results.report_common import EXPERIMENTS, PAPER_NUMBERS, cell, colours, fail, plot_aggregates, plot_levels, plot_training, plt, with_interval
 
 F1_CIRCUITS = ["Australia", "Austria", "Bahrain", "Belgium", "Brazil", "China", "France", "Germany", "Hungary", "Italy",
                "Malaysia", "Mexico", "Monaco", "Netherlands", "Portugal", "Russia", "Singapore", "Spain", "UK", "USA"]
 # The paper's zero-shot returns per F1 circuit, then their mean over the circuits (mean, standard error over
-# 10 seeds, 5.5M steps): its appendix Table "CarRacing F1".
-CARRACING_PAPER = {
-    "robust_plr": [(692.3, 14.96), (615.14, 12.93), (589.83, 15.05), (473.52, 12.22), (454.92, 13.35), (227.71, 24.37),
-                   (478.31, 22.35), (498.59, 17.9), (707.75, 17.5), (624.96, 11.94), (399.86, 17.51), (712.1, 12.48),
-                   (485.64, 19.46), (419.22, 25.24), (483.44, 12.7), (649.34, 13.55), (566.37, 15.11), (621.64, 13.7),
-                   (537.58, 16.81), (380.65, 33.22), (530.94, 6.67)],
-    "paired": [(100.28, 21.67), (92.15, 24.0), (-34.96, 18.8), (72.19, 20.14), (75.73, 18.16), (-100.5, 9.15), (-80.76, 12.73),
-               (-32.51, 16.05), (97.6, 28.53), (131.56, 23.71), (-26.18, 16.61), (66.53, 31.4), (-28.3, 18.18), (70.41, 20.35),
-               (-48.96, 13.0), (51.26, 20.52), (-34.96, 13.5), (134.11, 23.79), (137.63, 24.67), (-119.17, 10.99), (26.16, 15.22)],
-    "paired_hient": [(651.72, 13.19), (597.53, 6.88), (556.74, 16.58), (452.7, 6.6), (435.26, 13.2), (180.44, 30.45),
-                     (482.9, 28.46), (471.62, 13.22), (696.65, 17.79), (568.26, 6.21), (386.58, 11.78), (711.34, 10.05),
-                     (356.1, 26.13), (464.78, 17.1), (424.54, 14.99), (603.0, 22.04), (435.81, 19.94), (609.63, 12.38),
-                     (558.9, 12.65), (324.71, 27.69), (498.46, 6.3)],
-    "paired_bibc_hient": [(779.11, 8.69), (758.52, 10.83), (631.47, 14.71), (587.27, 15.13), (557.48, 19.77), (511.67, 23.78),
-                          (603.53, 15.62), (532.02, 14.86), (739.13, 9.53), (780.99, 8.88), (519.64, 17.22), (697.4, 12.06),
-                          (605.03, 17.37), (612.2, 17.67), (621.8, 16.41), (668.23, 12.66), (644.05, 13.25), (681.99, 13.13),
-                          (620.75, 13.1), (667.87, 12.87), (641.01, 7.21)],
-}
+# 10 seeds, 5.5M steps): its appendix Table "CarRacing F1", from results/paper_numbers.json.
+CARRACING_PAPER = {name: [tuple(value) for value in published["values"]]
+                   for name, published in PAPER_NUMBERS["carracing"]["experiments"].items() if published["source"] == "paper"}
+assert PAPER_NUMBERS["carracing"]["levels"] == [*F1_CIRCUITS, "mean"]
 # DR's mean over the circuits at 5M steps, from the reference implementation's results files (the paper
 # reports no DR on CarRacing).
-CARRACING_DR_MEAN = 342.0
+CARRACING_DR_MEAN = PAPER_NUMBERS["carracing"]["experiments"]["dr"]["mean"][0]
 WALKER_COURSES = ["BipedalWalker-v3", "BipedalWalkerHardcore-v3", "Stairs", "PitGap", "Stump", "Roughness"]
 # The reference implementation's returns on the six courses at 20k updates (about 655M steps), from its
-# results files.
-WALKER_REFERENCE = {"accel": [318, 211, 92, 112, 166, 253], "robust_plr": [305, 85, 51, 43, 7, 130], "dr": [267, 14, 19, 12, -10, 52]}
+# results files, by way of results/paper_numbers.json.
+WALKER_REFERENCE = {name: [value[0] for value in published["values"]] for name, published in PAPER_NUMBERS["walker"]["experiments"].items()}
+assert PAPER_NUMBERS["walker"]["levels"] == WALKER_COURSES
 
 # Training curves: (title, the column each script family logs it in, y range or None)
 CARRACING_CURVES = [("protagonist's training return", ("mean_return", "protagonist_return"), None),

@@ -22,26 +22,16 @@ import os
 import numpy as np
 
 from envs.evaluation import aggregate
-from results.report_common import (EXPERIMENTS, SMOOTHING, cell, colours, curve, plot_aggregates, plot_band, plot_levels, plot_training,
+from results.report_common import (EXPERIMENTS, PAPER_NUMBERS, SMOOTHING, cell, colours, curve, plot_aggregates, plot_band, plot_levels, plot_training,
                                    plt, with_interval)
 
 MAZES = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
          "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
-# The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates):
-# its Table "Minigrid 0-60 Uniform-Blocks" and, for PAIRED+Evo, its PAIRED+Evo table. It reports no DR or
-# Robust PLR on maze 0-60.
-PAPER = {
-    "accel": [(0.64, 0.18), (0.55, 0.19), (0.73, 0.18), (0.62, 0.2), (0.79, 0.2), (0.33, 0.18), (0.53, 0.2), (0.67, 0.16),
-              (0.64, 0.2), (0.5, 0.05), (0.51, 0.04), (0.82, 0.02), (0.61, 0.03)],
-    "paired": [(0.16, 0.13), (0.1, 0.1), (0.46, 0.23), (0.15, 0.14), (0.01, 0.01), (0.02, 0.02), (0.15, 0.15), (0.25, 0.17),
-               (0.16, 0.08), (0.17, 0.07), (0.38, 0.06), (0.48, 0.16), (0.21, 0.07)],
-    "paired_hient": [(0.42, 0.16), (0.57, 0.23), (0.7, 0.2), (0.67, 0.18), (0.19, 0.11), (0.54, 0.16), (0.39, 0.19), (0.63, 0.22),
-                     (0.63, 0.19), (0.47, 0.15), (0.42, 0.02), (0.62, 0.04), (0.52, 0.13)],
-    "paired_bc_hient": [(0.83, 0.07), (0.64, 0.17), (0.33, 0.1), (0.26, 0.15), (0.03, 0.02), (0.38, 0.15), (0.5, 0.13), (0.63, 0.07),
-                        (0.57, 0.11), (0.25, 0.04), (0.55, 0.05), (0.68, 0.08), (0.47, 0.05)],
-    "paired_evo": [(0.78, 0.13), (0.48, 0.23), (0.51, 0.28), (0.2, 0.14), (0.5, 0.27), (0.28, 0.24), (0.44, 0.25), (0.58, 0.25),
-                   (0.53, 0.27), (0.42, 0.14), (0.42, 0.09), (0.86, 0.06), (0.5, 0.14)],
-}
+# The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates),
+# per maze in MAZES' order then their mean, from results/paper_numbers.json (its Table "Minigrid 0-60
+# Uniform-Blocks" and, for PAIRED+Evo, its PAIRED+Evo table). It reports no DR or Robust PLR on maze 0-60.
+PAPER = {name: [tuple(value) for value in published["values"]] for name, published in PAPER_NUMBERS["maze"]["experiments"].items()}
+assert PAPER_NUMBERS["maze"]["levels"] == [*MAZES, "mean"]
 # Training curves: (title, the column each script family logs it in, y range or None)
 CURVES = [("protagonist's training return", ("mean_return", "protagonist_return"), (0, 1)),
           ("validation solved rate (3 mazes)", ("val_solved_rate",), (0, 1)),
