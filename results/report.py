@@ -34,7 +34,7 @@ def main(argv=None) -> None:
     if env in ("carracing", "walker"):
         report_continuous.write_report(args.directory, runs, env)
     else:
-        report_maze.write_report(args.directory, runs)
+        report_maze.write_report(args.directory, runs, env)
     long_runs = os.path.join(args.directory, "long")
     if os.path.isdir(long_runs):
         report_milestones.write_report(long_runs, runs, env)

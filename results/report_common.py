@@ -26,7 +26,8 @@ EXPERIMENTS = {"dr": "DR", "robust_plr": "Robust PLR", "accel": "ACCEL", "paired
                "paired_bc_hient": "PAIRED+UniBC+HiEnt", "paired_evo": "PAIRED+Evo", "paired_bibc_hient": "PAIRED+BiBC+HiEnt",
                "robust_plr_maxmc": "Robust PLR (MaxMC)", "robust_plr_learnability": "Robust PLR (learnability)",
                "paired_evo_unibc": "PAIRED+Evo+UniBC", "accel_random": "ACCEL (random levels)",
-               "paired_evo_random": "PAIRED+Evo (random levels)", "paired_evo_unibc_random": "PAIRED+Evo+UniBC (random levels)"}
+               "paired_evo_random": "PAIRED+Evo (random levels)", "paired_evo_unibc_random": "PAIRED+Evo+UniBC (random levels)",
+               "paired_unibc": "PAIRED+UniBC", "paired_bibc": "PAIRED+BiBC"}
 SMOOTHING = 25  # updates in the trailing mean of the training curves
 # The published numbers every report compares with, each with its source: the one file that holds them.
 PAPER_NUMBERS_FILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "paper_numbers.json")

@@ -1,7 +1,7 @@
 """The maze reproduction's numbers and figures, regenerated from the committed run outputs alone.
 results/report.py hands the runs over here when their args.json names the maze:
 
-    python -m results.report results/maze
+    python -m results.report results/maze      # (maze 25 blocks: results/maze25)
 
 reads DIR/<experiment>/<seed>/{args.json, metrics.csv, eval.json, levels.png} and writes into DIR:
 summary.json, table.md (ours, then the paper's), solved_per_maze.png (a), aggregates.png (b),
@@ -27,11 +27,16 @@ from results.report_common import (EXPERIMENTS, PAPER_NUMBERS, SMOOTHING, cell, 
 
 MAZES = ["SixteenRooms", "SixteenRoomsFewerDoors", "Labyrinth", "Labyrinth2", "Maze", "Maze2", "Maze3", "SmallCorridor",
          "LargeCorridor", "PerfectMazeMedium", "FourRooms", "SimpleCrossingS11N5"]
-# The paper's solved rates on maze 0-60 (mean, standard error over 5 seeds, 250M steps; ACCEL 20k updates),
-# per maze in MAZES' order then their mean, from results/paper_numbers.json (its Table "Minigrid 0-60
-# Uniform-Blocks" and, for PAIRED+Evo, its PAIRED+Evo table). It reports no DR or Robust PLR on maze 0-60.
-PAPER = {name: [tuple(value) for value in published["values"]] for name, published in PAPER_NUMBERS["maze"]["experiments"].items()}
-assert PAPER_NUMBERS["maze"]["levels"] == [*MAZES, "mean"]
+# The paper's solved rates per env (mean and its ± over 5 seeds, 250M steps; ACCEL 20k updates), per maze
+# in MAZES' order then their mean, from results/paper_numbers.json: on maze 0-60 its Table "Minigrid 0-60
+# Uniform-Blocks" and, for PAIRED+Evo, its PAIRED+Evo table (no DR or Robust PLR); on 25 blocks its Table
+# "MiniGrid 25-Blocks" (no DR, ACCEL or PAIRED+Evo).
+PAPER = {env: {name: [tuple(value) for value in published["values"]] for name, published in PAPER_NUMBERS[env]["experiments"].items()}
+         for env in ("maze", "maze25")}
+assert PAPER_NUMBERS["maze"]["levels"] == PAPER_NUMBERS["maze25"]["levels"] == [*MAZES, "mean"]
+# What the paper's table under ours says it is
+PAPER_TABLE = {"maze": "maze 0-60, 250M steps, 5 seeds; mean ± standard error",
+               "maze25": "maze 25 blocks, 250M steps, 5 seeds; mean ± the spread its table prints, called a standard deviation"}
 # Training curves: (title, the column each script family logs it in, y range or None)
 CURVES = [("protagonist's training return", ("mean_return", "protagonist_return"), (0, 1)),
           ("validation solved rate (3 mazes)", ("val_solved_rate",), (0, 1)),
@@ -54,7 +59,7 @@ def summarize(runs: dict) -> dict:
     return summary
 
 
-def table(summary: dict) -> str:
+def table(summary: dict, env: str) -> str:
     """Markdown: ours (mean ± standard error over seeds per maze, the mean, IQM and optimality gap with
     their intervals), then the paper's numbers for the experiments it reports."""
     names = list(summary)
@@ -66,15 +71,15 @@ def table(summary: dict) -> str:
         lines.append(f"| {label} [95% CI] | " + " | ".join(
             with_interval(summary[n][key], summary[n][f"{key}_ci"], len(summary[n]["seeds"])) for n in names) + " |")
     lines.append("| seeds | " + " | ".join(str(len(summary[n]["seeds"])) for n in names) + " |")
-    paper = [n for n in EXPERIMENTS if n in PAPER]
-    lines += ["", "The paper's solved rates (maze 0-60, 250M steps, 5 seeds; mean ± standard error):", "",
+    paper = [n for n in EXPERIMENTS if n in PAPER[env]]
+    lines += ["", f"The paper's solved rates ({PAPER_TABLE[env]}):", "",
               "| maze | " + " | ".join(EXPERIMENTS[n] for n in paper) + " |", "|---" * (len(paper) + 1) + "|"]
     for i, maze in enumerate([*MAZES, "**mean**"]):
-        lines.append(f"| {maze} | " + " | ".join(cell(*PAPER[n][i], seeds=5) for n in paper) + " |")
+        lines.append(f"| {maze} | " + " | ".join(cell(*PAPER[env][n][i], seeds=5) for n in paper) + " |")
     return "\n".join(lines) + "\n"
 
 
-def plot_solved_per_maze(summary: dict, path: str) -> None:
+def plot_solved_per_maze(summary: dict, env: str, path: str) -> None:
     """(a) The solved rate per held-out maze per experiment, mean ± standard error over seeds."""
     names, colour = list(summary), colours(summary)
     fig, ax = plt.subplots(figsize=(13, 4.2))
@@ -86,9 +91,9 @@ def plot_solved_per_maze(summary: dict, path: str) -> None:
         errors = [levels[m]["se"] for m in MAZES] + [summary[name]["se"]]
         ax.bar(x, means, width, yerr=errors, capsize=2, color=colour[name],
                label=f"{EXPERIMENTS.get(name, name)} ({len(summary[name]['seeds'])} seed{'s' * (len(summary[name]['seeds']) > 1)})")
-    for i, name in enumerate(n for n in names if n in PAPER):  # the paper's mean, on the "mean" group
+    for i, name in enumerate(n for n in names if n in PAPER[env]):  # the paper's mean, on the "mean" group
         x = len(MAZES) + (names.index(name) - (len(names) - 1) / 2) * width
-        ax.plot(x, PAPER[name][-1][0], marker="_", markersize=14, markeredgewidth=2.5, color="black",
+        ax.plot(x, PAPER[env][name][-1][0], marker="_", markersize=14, markeredgewidth=2.5, color="black",
                 label="paper's mean (250M steps)" if i == 0 else None)
     ax.set_xticks(np.arange(len(MAZES) + 1), [*MAZES, "mean"], rotation=30, ha="right")
     ax.set_ylim(0, 1)
@@ -156,14 +161,14 @@ def plot_scores(runs: dict, summary: dict, path: str) -> list[str]:
     return names
 
 
-def write_report(directory: str, runs: dict) -> None:
-    """summary.json, table.md and the figures of the maze runs into directory."""
+def write_report(directory: str, runs: dict, env: str) -> None:
+    """summary.json, table.md and the figures of the maze runs (env: maze or maze25) into directory."""
     summary = summarize(runs)
     with open(os.path.join(directory, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2)
     with open(os.path.join(directory, "table.md"), "w") as f:
-        f.write(table(summary))
-    plot_solved_per_maze(summary, os.path.join(directory, "solved_per_maze.png"))
+        f.write(table(summary, env))
+    plot_solved_per_maze(summary, env, os.path.join(directory, "solved_per_maze.png"))
     plot_aggregates(summary, os.path.join(directory, "aggregates.png"))
     plot_training(runs, os.path.join(directory, "training.png"), CURVES)
     plot_levels(runs, os.path.join(directory, "levels.png"))

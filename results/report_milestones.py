@@ -75,7 +75,7 @@ def continuous_merit(reproduction: Reproduction) -> Merit:
 
 MERITS = {
     "maze": Merit(metric="solved_rate", key="mean_solved_rate", words="solved rate", level="maze", aside=(), target=1.0, digits=2,
-                  limits=(0, 1), published={name: {"steps": 250_000_000, "mean": PAPER[name][-1][0], "se": PAPER[name][-1][1]} for name in PAPER},
+                  limits=(0, 1), published={name: {"steps": 250_000_000, "mean": paper[-1][0], "se": paper[-1][1]} for name, paper in PAPER["maze"].items()},
                   source="paper", note="(paper): the paper's mean solved rate on maze 0-60, 5 seeds at 250M steps (its Table "
                   "\"Minigrid 0-60 Uniform-Blocks\"; PAIRED+Evo: its PAIRED+Evo table); it reports no DR or Robust PLR on maze 0-60.",
                   curves=CURVES, rows=1, figure="solved_over_training.png"),

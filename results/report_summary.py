@@ -21,7 +21,7 @@ RESULTS = os.path.dirname(os.path.abspath(__file__))
 SUMMARY_FILE = os.path.join(RESULTS, "summary.md")
 # The campaigns, in the table's order: (folder under results/, env's name, summary.json's key of the mean,
 # digits of ours, digits of the published numbers: None prints them as published)
-CAMPAIGNS = [("maze", "Maze 0-60", "mean_solved_rate", 2, 2), ("carracing", "CarRacing F1", "mean_return", 1, None),
+CAMPAIGNS = [("maze", "Maze 0-60", "mean_solved_rate", 2, 2), ("maze25", "Maze 25 blocks", "mean_solved_rate", 2, 2), ("carracing", "CarRacing F1", "mean_return", 1, None),
              ("walker", "BipedalWalker", "mean_return", 1, None)]
 # Our random-level variants, compared with the paper's method of their name
 PAPER_NAME = {"accel_random": "accel", "paired_evo_random": "paired_evo"}
