@@ -1,13 +1,14 @@
 """What every algorithm script does around its algorithm: read the command line (one `error:` line for
 bad input), check CarRacing's track file, find the student class a run trains, set up the device, write
-checkpoints atomically, log metrics and level images, and measure how well a curriculum's score tracks the
-true regret."""
+checkpoints that survive a kill and are checked before they load, log metrics and level images, and
+measure how well a curriculum's score tracks the true regret."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
 import dataclasses
+import hashlib
 import importlib
 import io
 import json
@@ -100,8 +101,12 @@ def resumed_args(args_class, args, script_path: str, budgets=("total_timesteps",
     run continued to N steps equals one given N steps from the start. A budget below what the run has
     done is refused."""
     run_dir = args.resume
-    path, checkpoint_path = os.path.join(run_dir, "args.json"), os.path.join(run_dir, "checkpoint.pt")
-    if not (os.path.isfile(path) and os.path.isfile(checkpoint_path)):
+    path = os.path.join(run_dir, "args.json")
+    try:
+        checkpoint_path = good_checkpoint(run_dir)
+    except ValueError as error:
+        fail(f"--resume {error}")
+    if not (os.path.isfile(path) and checkpoint_path):
         fail(f"--resume {run_dir}: not a run directory (needs args.json and checkpoint.pt)")
     with open(path) as f:
         saved = json.load(f)
@@ -217,11 +222,82 @@ def rollouts_on_device(env, agent, storage, args, device: torch.device, normaliz
     return getattr(importlib.import_module(module), name)(env, agent, storage, args.gamma, args.gae_lambda, device, graph=True)
 
 
-def save_checkpoint(path: str, state: dict) -> None:
-    """Written beside and renamed over the old one: a run killed while saving keeps its last checkpoint."""
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+# A run's two newest checkpoints, and the manifest that records each one's size, sha256, update and global_step.
+CHECKPOINT, PREVIOUS_CHECKPOINT, CHECKPOINT_MANIFEST = "checkpoint.pt", "checkpoint_previous.pt", "checkpoint.json"
+
+
+def file_sums(data: bytes) -> dict:
+    return {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def write_to_disk(path: str, data: bytes) -> None:
+    """`data` as the file `path`, flushed to the disk (a machine that goes down keeps it whole)."""
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def newest_good_checkpoint(run_dir: str) -> tuple[str, dict] | None:
+    """checkpoint.pt, else checkpoint_previous.pt, the first that checkpoint.json vouches for: its size and
+    sha256 are those of one of the manifest's records (by content, not by name: during a save a checkpoint
+    moves from one name to the other). -> its path and record, or None. A run written before checkpoints had
+    a manifest: its checkpoint.pt as it is (a record of its sums only)."""
+    try:
+        with open(os.path.join(run_dir, CHECKPOINT_MANIFEST)) as f:
+            records = list(json.load(f).values())
+    except FileNotFoundError:
+        records = None
+    except ValueError:  # a damaged manifest vouches for nothing
+        records = []
+    for name in (CHECKPOINT, PREVIOUS_CHECKPOINT):
+        path = os.path.join(run_dir, name)
+        if os.path.isfile(path):
+            with open(path, "rb") as f:
+                sums = file_sums(f.read())
+            if records is None:
+                return path, sums
+            for record in records:
+                if record.get("bytes") == sums["bytes"] and record.get("sha256") == sums["sha256"]:
+                    return path, record
+    return None
+
+
+def good_checkpoint(run_dir: str) -> str | None:
+    """The checkpoint a resumed run loads: `newest_good_checkpoint`'s path; None where the run directory
+    has no checkpoint. Raises ValueError where it has one but its manifest vouches for none (damaged or
+    missing files)."""
+    found = newest_good_checkpoint(run_dir)
+    if found:
+        return found[0]
+    if any(os.path.exists(os.path.join(run_dir, name)) for name in (CHECKPOINT, PREVIOUS_CHECKPOINT, CHECKPOINT_MANIFEST)):
+        raise ValueError(f"{run_dir}: its checkpoints are damaged: neither {CHECKPOINT} nor {PREVIOUS_CHECKPOINT} "
+                         f"has a size and sha256 that {CHECKPOINT_MANIFEST} records")
+    return None
+
+
+def save_checkpoint(run_dir: str, state: dict) -> None:
+    """`state` (with its update and global_step) as the run's checkpoint.pt; the newest good checkpoint
+    before it kept as checkpoint_previous.pt; checkpoint.json recording both. In this order, so that a
+    kill at any moment leaves a checkpoint that checkpoint.json vouches for (`newest_good_checkpoint`):
+    the new checkpoint written as checkpoint.pt.tmp; checkpoint.json replaced (written beside, renamed
+    over) by one that records the new checkpoint and the newest good one; that one renamed to
+    checkpoint_previous.pt; the new one renamed to checkpoint.pt."""
+    newest, previous = os.path.join(run_dir, CHECKPOINT), os.path.join(run_dir, PREVIOUS_CHECKPOINT)
+    manifest_path = os.path.join(run_dir, CHECKPOINT_MANIFEST)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    data = buffer.getvalue()
+    kept = newest_good_checkpoint(run_dir)
+    write_to_disk(newest + ".tmp", data)
+    manifest = {CHECKPOINT: {**file_sums(data), "update": int(state["update"]), "global_step": int(state["global_step"])}}
+    if kept:
+        manifest[PREVIOUS_CHECKPOINT] = kept[1]
+    write_to_disk(manifest_path + ".tmp", json.dumps(manifest, indent=2).encode())
+    os.replace(manifest_path + ".tmp", manifest_path)
+    if kept and kept[0] == newest:
+        os.replace(newest, previous)
+    os.replace(newest + ".tmp", newest)
 
 
 def log_scalars(tensorboard, row: dict, step: int) -> None:

@@ -8,15 +8,19 @@
     run.finish(agent, curves)
 
 A run directory, runs/<env>__<exp_name>__<seed>__<unix time>/, holds args.json (the options, the script and
-the student's class), metrics.csv (one row per update), TensorBoard events, checkpoint.pt, levels_<update>.png,
-eval.json and eval_<steps>.json (the held-out evaluation at the end and at each milestone) and curves.png.
+the student's class), metrics.csv (one row per update), TensorBoard events, checkpoint.pt and
+checkpoint_previous.pt (the two newest checkpoints) with checkpoint.json (their sizes and sha256: a damaged
+checkpoint is found before it loads, and the run resumes from the other), levels_<update>.png, eval.json
+and eval_<steps>.json (the held-out evaluation at the end and at each milestone) and curves.png.
 
 A checkpoint holds each piece of the script's `state`, under its name (a dict of pieces nests): a network,
 an optimizer, a return normalizer or a level buffer (anything with state_dict and load_state_dict), a
 numpy Generator (its bit generator's state) or None (nothing); then the process's global random states
 (numpy's, torch's, CUDA's) and the counters given to `end_update` (update, global_step and the like). So a
 piece of state is named once, in the script, and `--resume DIR` continues the run exactly where its last
-checkpoint left it. Checkpoints are pickles: load only your own.
+checkpoint left it. A checkpoint is saved every checkpoint_interval updates, at the last, and at least every
+15 minutes; a run sent SIGTERM (a session or job ending) saves one after its current update and exits with
+status 143. Checkpoints are pickles: load only your own.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ import csv
 import dataclasses
 import json
 import os
+import signal
+import sys
 import time
 
 import numpy as np
@@ -34,8 +40,14 @@ from torch.utils.tensorboard import SummaryWriter
 
 from envs.evaluation import evaluate_all, milestones_passed, save_held_out_evaluation
 from envs.render import save_curves, save_image_grid
-from envs.runs import class_path, log_image, log_scalars, record_continuation, save_checkpoint
+from envs.runs import CHECKPOINT, class_path, good_checkpoint, log_image, log_scalars, record_continuation, save_checkpoint
 from envs.video import capture_videos
+
+# A run killed without warning loses at most this much work (and its update in progress).
+MAX_SECONDS_BETWEEN_CHECKPOINTS = 15 * 60
+# The exit status of a run stopped by SIGTERM once it has saved its checkpoint: a shell's for a process
+# SIGTERM ended (results/sweep.py reads it as the sweep being stopped).
+STOPPED_BY_SIGTERM = 128 + signal.SIGTERM
 
 
 def state_of(piece):
@@ -91,16 +103,20 @@ class TrainingRun:
         self.dir = args.resume or os.path.join("runs", f"{args.env}__{args.exp_name}__{args.seed}__{int(time.time())}")
         self.counters: dict = {}
         self.milestones_at_end: list[int] = []  # the last update's, evaluated with the final evaluation
+        self.stop_requested = False  # by SIGTERM
 
     def start(self, **counters) -> tuple:
-        """Create the run directory, or reopen a resumed run's: load its checkpoint into the state, drop the
-        metrics logged after it and record a longer budget or other milestones. -> the counters' values,
-        in the order given: those given (a new run's start) or the checkpoint's."""
+        """Create the run directory, or reopen a resumed run's: load its newest good checkpoint into the state
+        (a damaged checkpoint.pt is skipped, and said so), drop the metrics logged after it and record a longer
+        budget or other milestones. From here on, SIGTERM stops the run after its current update, once it has
+        saved a checkpoint. -> the counters' values, in the order given: those given (a new run's start) or
+        the checkpoint's."""
         metrics_path = os.path.join(self.dir, "metrics.csv")
         if self.args.resume:
+            path = good_checkpoint(self.dir)  # (resumed_args has refused a run without one)
             # On the CPU first: the random states must stay CPU tensors; load_state_dict moves weights and the
             # optimizer's state to their parameters' device (a GPU run resumes on a CPU machine and back).
-            checkpoint = torch.load(os.path.join(self.dir, "checkpoint.pt"), map_location="cpu", weights_only=False)
+            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
             for name, piece in self.state.items():
                 load_state(piece, checkpoint[name])
             np.random.set_state(checkpoint["numpy_global"])
@@ -108,6 +124,10 @@ class TrainingRun:
             if checkpoint.get("cuda_rng") and torch.cuda.is_available():
                 torch.cuda.set_rng_state_all(checkpoint["cuda_rng"])
             counters = {name: checkpoint[name] for name in counters}
+            if os.path.basename(path) != CHECKPOINT:
+                why = "damaged (its size or sha256 is not the one checkpoint.json records)" if os.path.exists(
+                    os.path.join(self.dir, CHECKPOINT)) else "missing"
+                print(f"{CHECKPOINT} of {self.dir} is {why}: going back to {os.path.basename(path)}, update {counters['update']}")
             with open(metrics_path, newline="") as f:
                 kept = [row for row in csv.DictReader(f) if int(row["update"]) <= counters["update"]]
             with open(metrics_path, "w", newline="") as f:
@@ -133,13 +153,22 @@ class TrainingRun:
         self.tensorboard = SummaryWriter(self.dir, purge_step=counters["global_step"] + 1 if self.args.resume else None)
         self.counters = counters
         self.window_start, self.window_steps = time.time(), counters["global_step"]
+        self.last_checkpoint_time = time.monotonic()
+        self.sigterm_handler_before = signal.signal(signal.SIGTERM, self.request_stop)
         return tuple(counters.values())
+
+    def request_stop(self, signum, frame) -> None:
+        """SIGTERM's handler: end_update stops the run once it has saved a checkpoint."""
+        self.stop_requested = True
 
     def end_update(self, agent, row: dict, last: bool, **counters) -> None:
         """After each update: the validation every eval_interval updates and at the last (its columns join
         the row); the held-out evaluation at each milestone the update passed (the last update's come with
         the final evaluation, `finish`); the row into metrics.csv, TensorBoard and wandb; a checkpoint every
-        checkpoint_interval updates and at the last, with `counters` (update, global_step and the rest)."""
+        checkpoint_interval updates, at the last, MAX_SECONDS_BETWEEN_CHECKPOINTS after the one before and
+        after SIGTERM, with `counters` (update, global_step and the rest). After SIGTERM the run then exits
+        (status STOPPED_BY_SIGTERM), but in its last update, which goes on to the final evaluation (a run
+        resumed after it would lack the evaluations of the milestones that update reached)."""
         args, update, steps_before = self.args, counters["update"], self.counters["global_step"]
         self.counters = counters
         if update % args.eval_interval == 0 or last:
@@ -163,11 +192,18 @@ class TrainingRun:
             import wandb
 
             wandb.log(row, step=counters["global_step"])
-        if update % args.checkpoint_interval == 0 or last:
-            save_checkpoint(os.path.join(self.dir, "checkpoint.pt"), {
+        overdue = time.monotonic() - self.last_checkpoint_time >= MAX_SECONDS_BETWEEN_CHECKPOINTS
+        if update % args.checkpoint_interval == 0 or last or overdue or self.stop_requested:
+            save_checkpoint(self.dir, {
                 **{name: state_of(piece) for name, piece in self.state.items()},
                 "numpy_global": np.random.get_state(), "torch": torch.get_rng_state(),
                 "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None, **counters})
+            self.last_checkpoint_time = time.monotonic()
+        if self.stop_requested and not last:
+            self.metrics_file.close()
+            self.tensorboard.close()
+            print(f"stopped by SIGTERM after update {update}, its checkpoint saved: --resume {self.dir} continues the run")
+            sys.exit(STOPPED_BY_SIGTERM)
 
     def print_progress(self, share_done: float, details: str) -> None:
         """Every log_interval updates, one line: the update, the steps, the steps per second since the last
@@ -190,7 +226,9 @@ class TrainingRun:
 
     def finish(self, agent, curves: list[tuple[str, list[str]]]) -> None:
         """The final zero-shot evaluation on every held-out level (eval.json, and the last update's milestones),
-        GIFs with --capture-video, and curves.png: `curves`, (title, metrics.csv columns) per panel."""
+        GIFs with --capture-video, and curves.png: `curves`, (title, metrics.csv columns) per panel. SIGTERM
+        ends it at once (its checkpoint is saved)."""
+        signal.signal(signal.SIGTERM, self.sigterm_handler_before)
         self.metrics_file.close()
         self.tensorboard.close()
         args = self.args

@@ -19,14 +19,15 @@ command line per experiment:
 
 Each run lives in `<workdir>/runs/<env>__<experiment>__<seed>__<time>/`, the scripts' own run directory,
 with the experiment as `--exp-name`. Running a sweep again skips the runs that finished (eval.json),
-resumes those cut off (checkpoint.pt, with `--resume`) and starts the others: a killed sweep is
+resumes those cut off (from their newest good checkpoint, with `--resume`) and starts the others: a killed sweep is
 continued by launching it again. A resumed run takes the file's budget and milestones (--total-timesteps,
 --gradient-updates, --milestones): a sweep file that raises a budget continues its finished runs to it,
 from the same work directory (a finished run whose budget is at least the file's is skipped). Runs go in the file's order, seed by seed (the first seed of every
 experiment, then the second, ...), except that `later` experiments' other seeds wait for all the rest.
 Locally, each of the `parallel` lanes takes the next run no lane has taken, so a long run does not hold
 up a lane's queue; a run that fails is reported and the rest go on. To stop a sweep, signal its process
-group (`kill -- -PGID`): a run killed by a signal ends its lane, and launching again resumes it. A run in progress holds a lock file (<workdir>/locks/), so a second
+group (`kill -- -PGID`): a run killed by a signal ends its lane, and launching again resumes it (SIGTERM, kill's
+default, lets each run finish its update and save a checkpoint first; it then exits with status 143). A run in progress holds a lock file (<workdir>/locks/), so a second
 launcher skips it rather than run it twice (on a cluster, the lock needs a filesystem with flock). `--collect DEST` copies each finished run's args.json, metrics.csv,
 eval.json and eval_<steps>.json (milestones) to DEST/<experiment>/<seed>/, with the last image of its curriculum's levels as levels.png,
 plus the final student's weights of seed 1 as agent.pt. `--seeds` runs (or collects) only some of the
@@ -42,12 +43,15 @@ import glob
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tomllib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = ("plr.py", "accel.py", "paired.py", "paired_hient.py", "paired_bc.py", "paired_evo.py")
+# A run's exit status after SIGTERM once it has saved its checkpoint (envs/training_run.py's STOPPED_BY_SIGTERM).
+STOPPED_BY_SIGTERM = 128 + signal.SIGTERM
 
 
 def fail(message: str) -> None:
@@ -145,13 +149,20 @@ def run_one(job: dict) -> str:
 
 
 def run_unlocked(job: dict, env: str) -> str:
-    """run_one's work, under the run's lock."""
+    """run_one's work, under the run's lock. A run whose checkpoints are all damaged is reported and left
+    as it is."""
+    from envs.runs import good_checkpoint  # (imports torch: only where a run is looked at)
+
     command, workdir = job["command"], job["workdir"]
     existing = run_directory(workdir, env, job["experiment"], job["seed"])
     if existing and finished(existing, command):
         return f"finished earlier: {existing}"
     script = os.path.join(ROOT, command[0])
-    if existing and os.path.isfile(os.path.join(existing, "checkpoint.pt")):
+    try:
+        checkpoint = existing and good_checkpoint(existing)
+    except ValueError as error:
+        raise RuntimeError(f"{error}; not started anew") from None
+    if checkpoint:
         arguments, action = [script, "--resume", existing, *continued_options(command)], f"resumed {existing}"
     else:
         if existing:
@@ -167,8 +178,9 @@ def run_unlocked(job: dict, env: str) -> str:
                                     timeout=job["timeout_hours"] * 3600)
         except subprocess.TimeoutExpired:  # the run is killed; its last checkpoint stays for a relaunch
             raise RuntimeError(f"{action}: stopped after its timeout of {job['timeout_hours']} h; launch again to resume it")
-    if result.returncode < 0:  # killed by a signal: the sweep is being stopped, not a run failing
-        raise StopSweep(f"{action}: stopped by signal {-result.returncode}; launch again to resume it")
+    if result.returncode < 0 or result.returncode == STOPPED_BY_SIGTERM:  # the sweep is being stopped, not a run failing
+        number = signal.SIGTERM if result.returncode == STOPPED_BY_SIGTERM else -result.returncode
+        raise StopSweep(f"{action}: stopped by signal {number}; launch again to resume it")
     if result.returncode != 0:
         raise RuntimeError(f"{action}: exit status {result.returncode} (see logs/{job['experiment']}_{job['seed']}.log)")
     return action
@@ -221,6 +233,8 @@ def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
     its milestones' evaluations (a finished run's eval.json copied earlier is removed: the run goes on)."""
     import torch
 
+    from envs.runs import good_checkpoint
+
     for job in jobs:
         command = job["command"]
         run = run_directory(job["workdir"], command[command.index("--env") + 1], job["experiment"], job["seed"])
@@ -240,7 +254,11 @@ def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
         if images:  # the levels of the curriculum at the end (so far)
             shutil.copy(max(images, key=lambda path: int(path.rsplit("_", 1)[1][:-4])), os.path.join(target, "levels.png"))
         if ended and job["seed"] == min(sweep["seeds"]):
-            checkpoint = torch.load(os.path.join(run, "checkpoint.pt"), map_location="cpu", weights_only=False)
+            try:
+                path = good_checkpoint(run)
+            except ValueError as error:  # its checkpoints are damaged
+                fail(str(error))
+            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
             student = checkpoint["agent"] if "agent" in checkpoint else checkpoint["protagonist"]
             torch.save(student, os.path.join(target, "agent.pt"))
         print(f"collected {run} -> {target}")
