@@ -35,6 +35,9 @@ class Registered:
     """its player of the student's whole rollouts on a GPU as "module:name", if it has one: a class built as
     `cls(env, agent, storage, gamma, gae_lambda, device, graph=True)` and called with a batch of levels as a
     script's rollout function is (envs.runs.rollouts_on_device)"""
+    steps_in_workers: bool = False
+    """whether its copies may step in worker processes (envs/workers.py): each copy's results depend on its
+    own level, actions and past alone"""
 
 
 # name -> how to make it: the `--env` choices of every script and of envs/evaluate.py. A script's paper
@@ -43,8 +46,8 @@ class Registered:
 REGISTRY: dict[str, Registered] = {
     "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}, device_rollout="envs.maze.on_device:DeviceRollout"),
     "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}, device_rollout="envs.maze.on_device:DeviceRollout"),
-    "carracing": Registered("envs.carracing.env:CarRacingEnv", evaluation_episodes=10),
-    "walker": Registered("envs.walker.env:WalkerEnv"),
+    "carracing": Registered("envs.carracing.env:CarRacingEnv", evaluation_episodes=10, steps_in_workers=True),
+    "walker": Registered("envs.walker.env:WalkerEnv", steps_in_workers=True),
 }
 
 
@@ -68,11 +71,23 @@ def keep_freed_memory() -> None:
         libc.mallopt(m_trim_threshold, 2**31 - 1)  # and freed heap memory is not returned to the OS
 
 
-def make(name: str, num_envs: int, seed: int) -> Env:
-    """The env `name` (a key of REGISTRY) with num_envs copies, its random stream seeded with seed."""
+def make(name: str, num_envs: int, seed: int, workers: int | None = None) -> Env:
+    """The env `name` (a key of REGISTRY) with num_envs copies, its random stream seeded with seed.
+
+    An env registered with steps_in_workers steps its copies in `workers` worker processes (None:
+    $CLEANUED_ENV_WORKERS, 0 when unset), at most one per copy, with the results of stepping them here
+    (envs/workers.py). With 0 workers, or one copy (nothing to step side by side), or another env, the
+    copies step in this process."""
     if name not in REGISTRY:
         raise ValueError(f"unknown env {name!r}: expected one of {', '.join(REGISTRY)}")
     registered = REGISTRY[name]
     module, _, class_name = registered.env_class.partition(":")
     env_class = getattr(importlib.import_module(module), class_name)
+    if registered.steps_in_workers and num_envs > 1:
+        from envs import workers as env_workers
+
+        count = min(env_workers.workers_from_environment() if workers is None else workers, num_envs)
+        if count > 0:
+            env_workers.announce(name, count)
+            return env_workers.WorkerSteppedEnv(lambda copies: env_class(num_envs=copies, seed=seed, **registered.options), num_envs, count)
     return env_class(num_envs=num_envs, seed=seed, **registered.options)
