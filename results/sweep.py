@@ -230,7 +230,8 @@ def launch(sweep: dict, jobs: list[dict], cluster: str, workdir: str) -> None:
 def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
     """Copy each finished run's small outputs to DEST/<experiment>/<seed>/ (and seed 1's student weights),
     and those of a run still going that has passed a milestone: its args.json, its metrics.csv so far and
-    its milestones' evaluations (a finished run's eval.json copied earlier is removed: the run goes on)."""
+    its milestones' evaluations (a finished run's eval.json copied earlier is removed: the run goes on). A
+    run that ended at a budget below the file's (to be continued to it) is still going."""
     import torch
 
     from envs.runs import good_checkpoint
@@ -239,7 +240,7 @@ def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
         command = job["command"]
         run = run_directory(job["workdir"], command[command.index("--env") + 1], job["experiment"], job["seed"])
         milestones = glob.glob(os.path.join(run, "eval_*.json")) if run else []
-        ended = run is not None and os.path.isfile(os.path.join(run, "eval.json"))
+        ended = run is not None and finished(run, command)  # (a run the file continues to a longer budget has not)
         if not (ended or milestones):
             continue
         target = os.path.join(destination, job["experiment"], str(job["seed"]))

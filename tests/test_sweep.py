@@ -214,3 +214,17 @@ def test_seeds_runs_only_those_of_the_file(tmp_path):
     result = sweep(path, "--workdir", str(tmp_path), "--seeds", "2")
     assert result.returncode == 0, result.stdout + result.stderr
     assert sorted(run.name.rsplit("__", 1)[0] for run in (tmp_path / "runs").iterdir()) == ["maze__a__2", "maze__b__2"]
+
+
+def test_a_run_ended_below_the_files_budget_is_collected_as_going_on(tmp_path):
+    """A run that ended at 10 steps, in a sweep file that continues it to 50: its milestones and metrics so
+    far are collected, its eval.json (the evaluation at 10) is not, as it will be the evaluation at 50."""
+    run = tmp_path / "work" / "runs" / "maze__accel__1__100"
+    run.mkdir(parents=True)
+    (run / "args.json").write_text(json.dumps({"env": "maze", "total_timesteps": 10}))
+    for name in ("eval.json", "eval_10.json", "metrics.csv"):
+        (run / name).write_text("{}")
+    path = sweep_file(tmp_path / "sweep.toml", {"accel": ["accel.py", "--env", "maze", "--total-timesteps", "50", "--milestones", "10", "50"]})
+    result = sweep(path, "--workdir", str(tmp_path / "work"), "--collect", str(tmp_path / "out"))
+    assert result.returncode == 0, result.stderr
+    assert sorted(os.listdir(tmp_path / "out" / "accel" / "1")) == ["args.json", "eval_10.json", "metrics.csv"]
