@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, Optional
 
 import numpy as np
@@ -33,12 +34,12 @@ from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
 from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
-from envs.scores import SCORE_FUNCTIONS, episode_means, highest_returns, other_scores, score_true_regret_correlations
+from envs.scores import SCORE_FUNCTIONS, highest_returns, other_scores, score_true_regret_correlations
 from envs.training_run import TrainingRun
 
 
-# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
-# of the chosen env.
+# The defaults written here are the maze's; the command line applies the paper's values of the chosen env
+# (PAPER_DEFAULTS and paper_args, after the algorithm).
 @dataclass
 class Args:
     env: Literal[tuple(envs.REGISTRY)] = "maze"
@@ -144,81 +145,6 @@ class Args:
     """updates between PNGs of the buffer's highest-scoring levels"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters), as the reference's configuration
-# files run them (docs/defaults.md lists each value's source). On the maze, ACCEL starts from empty rooms
-# (the ACCEL paper's setup, which the paper takes) with staleness 0.3.
-# ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
-# replay rate, the walker's staleness, and a mutation that moves 3 control points to neighbouring cells.
-# Nor on 25 blocks: maze25 takes the 0-60 maze's ACCEL.
-PAPER_DEFAULTS = {
-    "maze": dict(gradient_updates=20_000, total_timesteps=0, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, value_loss="clipped",
-                 normalize_returns=False, replay_prob=0.8, level_buffer_size=4000, temperature=0.3,
-                 staleness_coef=0.3, num_edits=5, generator="empty", eval_episodes=100),
-    "carracing": dict(gradient_updates=0, total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
-                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, ent_coef=0.0, value_loss="huber",
-                      normalize_returns=True, replay_prob=0.8, level_buffer_size=10000, temperature=0.3,
-                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
-    "walker": dict(gradient_updates=0, total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="huber",
-                   normalize_returns=True, replay_prob=0.9, level_buffer_size=1000, temperature=0.1,
-                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
-}
-PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
-
-# The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"score_function": str, "generator": str}
-
-
-def paper_args(env: str = "maze", **options) -> Args:
-    """The paper's settings for `env`, then `options` (the command line's defaults). A run is named for a
-    score other than the paper's (accel_maxmc, accel_learnability) and a generator other than the env's
-    (accel_random)."""
-    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
-    if "exp_name" not in options:
-        if args.score_function != "positive_value_loss":
-            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
-        if args.generator != PAPER_DEFAULTS.get(env, {}).get("generator", args.generator):
-            args.exp_name += "_" + args.generator
-    return args
-
-
-def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, and check them."""
-    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
-        args = resumed_args(Args, args, __file__, budgets=("total_timesteps", "gradient_updates"))
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
-    student, generators = student_and_generators(args.env, args.resume)
-    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
-    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
-        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
-    if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
-        fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
-    if args.generator not in generators:
-        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
-    if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
-        fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
-    if min(args.gradient_updates, args.total_timesteps) < 0 or max(args.gradient_updates, args.total_timesteps) == 0:
-        fail("--gradient-updates and --total-timesteps must be >= 0, and one of them positive")
-    if min(args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
-           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
-    return args
-
-
 # ---------------------------------------------------------------------------------------------------
 # Prioritized level replay (Jiang et al. 2021): the level buffer, its replay distribution, the replay
 # decision, and ACCEL's choice of the levels to edit. P = (1 - rho) P_S + rho P_C, P_S by the rank of each level's score, P_C by how many
@@ -317,32 +243,59 @@ def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> boo
 
 
 def select_parents(scores: np.ndarray, edit_levels: str) -> np.ndarray:
-    """Indices into the replayed batch of the levels to edit, one per child (as many as the batch):
-    "easy": the half with the lowest scores (the student has most nearly learned them), each twice;
-    "batch": every replayed level once."""
+    """Indices into the replayed batch of the levels to edit, one per child: "easy": the half with the
+    lowest scores (the student has most nearly learned them), each twice; "batch": every replayed level
+    once. Either way one child per env copy, for one rollout to play them all."""
+    num_children = len(scores)  # --num-envs
     if edit_levels == "batch":
-        return np.arange(len(scores))
-    easy = np.argsort(scores, kind="stable")[: len(scores) // 2]
-    return np.concatenate([easy, easy])
+        return np.arange(num_children)
+    easy = np.argsort(scores, kind="stable")[: num_children // 2]
+    return np.concatenate([easy, easy])  # num_children: resolve_args makes --num-envs even for "easy"
 
 
 # ---------------------------------------------------------------------------------------------------
-# The level score: the positive value loss (eq. 2), PLR's estimate of a level's regret.
+# The level score: the positive value loss (eq. 2), PLR's estimate of a level's regret, averaged over
+# the rollout's completed episodes.
 # ---------------------------------------------------------------------------------------------------
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+def episode_means(step_values: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor) -> torch.Tensor:
+    """Per env copy: the mean over the rollout's completed episodes of the mean over each episode's steps
+    of step_values [T, N]. episode_starts [T, N] marks the steps that start an episode; last_step_ended
+    [N] the copies whose episode ended at the rollout's last step.
+    An episode cut off by the rollout's end is not scored, as in the reference implementations (dcd,
+    JaxUED): after a failed 250-step episode, a 6-step piece would otherwise weigh as much as it. A copy
+    that completed no episode (one episode spans its whole rollout) is scored on that episode.
+    (envs/scores.py holds the same function for MaxMC; tests/test_duplicated_helpers.py keeps them equal.)"""
+    steps, n = step_values.shape
+    starts = episode_starts.bool().clone()
+    starts[0] = True
+    ends = torch.cat([starts[1:], last_step_ended.bool().unsqueeze(0)])  # step t is its episode's last
+    episode = torch.cumsum(starts.t().reshape(-1).long(), 0) - 1  # each step's episode, numbered copy by copy
+    num_episodes = int(episode[-1]) + 1
+    per_episode = lambda values: torch.zeros(num_episodes, device=step_values.device).index_add_(0, episode, values)  # noqa: E731
+    flat = step_values.t().reshape(-1)
+    episode_scores = per_episode(flat) / per_episode(torch.ones_like(flat))  # each episode's mean over its steps
+    completed = per_episode(ends.t().reshape(-1).float()) > 0
+    copy_of_episode = torch.zeros(num_episodes, dtype=torch.long, device=step_values.device)
+    copy_of_episode[episode] = torch.arange(n, device=step_values.device).repeat_interleave(steps)
+    per_copy = lambda values: torch.zeros(n, device=step_values.device).index_add_(0, copy_of_episode, values)  # noqa: E731
+    scored = completed | (per_copy(completed.float()) == 0)[copy_of_episode]  # or a copy's one unfinished episode
+    return per_copy(torch.where(scored, episode_scores, 0.0)) / per_copy(scored.float())
+
+
+def positive_value_loss(advantages: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor) -> torch.Tensor:
     """PLR's score per env copy, the paper's eq. 2: the mean over an episode's steps of max(GAE advantage,
-    0), averaged over the rollout's completed episodes (`episode_means`, which MaxMC shares: a copy that
-    completed none is scored on its unfinished episode)."""
-    return episode_means(advantages.clamp(min=0), dones, final_dones)
+    0), averaged over the rollout's completed episodes (a copy that completed none is scored on its
+    unfinished episode)."""
+    return episode_means(advantages.clamp(min=0), episode_starts, last_step_ended)
 
 
-def level_scores(advantages: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor,
+def level_scores(advantages: torch.Tensor, values: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor,
                  returns_per_level, highest: np.ndarray, solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
     """Every score of each level of one rollout, name -> [N]: the positive value loss, and MaxMC and
     learnability (envs/scores.py), which --score-function may choose and the diagnostic logs. highest: each
     level's record of MaxMC (`highest_returns`, raised by the buffer's for a replayed level)."""
-    return {"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),
-            **other_scores(values, dones, final_dones, returns_per_level, highest, solved_threshold, normalizer)}
+    return {"positive_value_loss": positive_value_loss(advantages, episode_starts, last_step_ended).cpu().numpy(),
+            **other_scores(values, episode_starts, last_step_ended, returns_per_level, highest, solved_threshold, normalizer)}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -362,34 +315,32 @@ class Rollout:
         self.actions = torch.zeros((num_steps, num_envs) + action_space.shape, dtype=torch_dtype(action_space), device=device)
         self.logprobs = torch.zeros(num_steps, num_envs, device=device)
         self.rewards = torch.zeros(num_steps, num_envs, device=device)
-        self.dones = torch.zeros(num_steps, num_envs, device=device)  # 1 where an episode starts at step t
-        self.final_dones = torch.zeros(num_envs, device=device)  # 1 where the last step ended an episode
+        self.episode_starts = torch.zeros(num_steps, num_envs, device=device)  # 1 where an episode starts at step t
+        self.last_step_ended = torch.zeros(num_envs, device=device)  # 1 where the rollout's last step ended an episode
         self.values = torch.zeros(num_steps, num_envs, device=device)
 
 
 @torch.no_grad()
-def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
+def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`).
     Each step's data are kept in numpy arrays and lists and moved into `storage` once at the end: at
     a maze step's size, a dozen small tensor copies per step would cost more than the env step."""
-    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
-        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
     step_obs = {k: np.empty((args.num_steps,) + v.shape, v.dtype) for k, v in obs.items()}
     rewards = np.empty((args.num_steps, args.num_envs), np.float32)
-    starts = np.empty((args.num_steps, args.num_envs), bool)  # True where an episode starts at step t
+    episode_starts = np.empty((args.num_steps, args.num_envs), bool)  # True where an episode starts at step t
     actions, logprobs, values = [], [], []
     ended = np.ones(args.num_envs, dtype=bool)
     episode_returns, running_return = [[] for _ in range(args.num_envs)], np.zeros(args.num_envs)
     for step in range(args.num_steps):
         for k, v in obs.items():
             step_obs[k][step] = v
-        starts[step] = ended
+        episode_starts[step] = ended
         action, logprob, _, value, state = agent.get_action_and_value(to_torch(obs, device), state, torch.from_numpy(ended).to(device))
         actions.append(action)
         logprobs.append(logprob)
@@ -410,11 +361,11 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     torch.stack(logprobs, out=storage.logprobs)
     torch.stack(values, out=storage.values)
     storage.rewards.copy_(torch.from_numpy(rewards))
-    storage.dones.copy_(torch.from_numpy(starts))
-    storage.final_dones.copy_(torch.from_numpy(ended))
+    storage.episode_starts.copy_(torch.from_numpy(episode_starts))
+    storage.last_step_ended.copy_(torch.from_numpy(ended))
     # GAE (in numpy: 256 small steps are cheaper there than as tensor ops).
     value = storage.values.cpu().numpy()
-    next_nonterminal = 1.0 - np.concatenate([starts[1:], ended[None]]).astype(np.float32)
+    next_nonterminal = 1.0 - np.concatenate([episode_starts[1:], ended[None]]).astype(np.float32)
     following = np.concatenate([value[1:], next_value[None]])
     delta = rewards + args.gamma * following * next_nonterminal - value
     advantages = np.empty_like(rewards)
@@ -480,10 +431,12 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Ar
         for rows in minibatch_rows(agent.is_recurrent, args, device):
             flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
-            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
+            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
+            if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
             value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
@@ -532,6 +485,84 @@ def metrics_row(env, buffer: LevelBuffer, levels, played, returns_per_level, sco
             **score_true_regret_correlations(optimal, returns_per_level, scores_of), **stats}
 
 
+# ---------------------------------------------------------------------------------------------------
+# Options: the paper's values per env (the defaults `Args` takes for --env), and resolve_args, which checks a run's arguments.
+# ---------------------------------------------------------------------------------------------------
+# The paper's settings per env (Appendix A, Table of hyperparameters), as the reference's configuration
+# files run them (docs/defaults.md lists each value's source). On the maze, ACCEL starts from empty rooms
+# (the ACCEL paper's setup, which the paper takes) with staleness 0.3.
+# ACCEL was not run on CarRacing in the paper: its CarRacing defaults are PLR's with the maze's ACCEL
+# replay rate, the walker's staleness, and a mutation that moves 3 control points to neighbouring cells.
+# Nor on 25 blocks: maze25 takes the 0-60 maze's ACCEL.
+PAPER_DEFAULTS = {
+    "maze": dict(gradient_updates=20_000, total_timesteps=0, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, ent_coef=0.0, value_loss="clipped",
+                 normalize_returns=False, replay_prob=0.8, level_buffer_size=4000, temperature=0.3,
+                 staleness_coef=0.3, num_edits=5, generator="empty", eval_episodes=100),
+    "carracing": dict(gradient_updates=0, total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, ent_coef=0.0, value_loss="huber",
+                      normalize_returns=True, replay_prob=0.8, level_buffer_size=10000, temperature=0.3,
+                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
+    "walker": dict(gradient_updates=0, total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, ent_coef=1e-3, value_loss="huber",
+                   normalize_returns=True, replay_prob=0.9, level_buffer_size=1000, temperature=0.1,
+                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
+}
+PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {"score_function": str, "generator": str}
+
+
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options` (the command line's defaults). A run is named for a
+    score other than the paper's (accel_maxmc, accel_learnability) and a generator other than the env's
+    (accel_random)."""
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
+    if "exp_name" not in options:
+        if args.score_function != "positive_value_loss":
+            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
+        if args.generator != PAPER_DEFAULTS.get(env, {}).get("generator", args.generator):
+            args.exp_name += "_" + args.generator
+    return args
+
+
+def resolve_args(args: Args) -> Args:
+    """Load a resumed run's arguments, and check them."""
+    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
+        args = resumed_args(Args, args, __file__, budgets=("total_timesteps", "gradient_updates"))
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
+    check_track_file(args)
+    student, generators = student_and_generators(args.env, args.resume)
+    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
+    if recurrent and args.num_envs % args.num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
+    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
+        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
+    if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
+        fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
+    if args.generator not in generators:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
+    if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
+        fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
+    if min(args.gradient_updates, args.total_timesteps) < 0 or max(args.gradient_updates, args.total_timesteps) == 0:
+        fail("--gradient-updates and --total-timesteps must be >= 0, and one of them positive")
+    if min(args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
+        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+    return args
+
+
 if __name__ == "__main__":
     args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
     device = select_device(args.cuda, args.torch_deterministic, args.env)
@@ -541,13 +572,17 @@ if __name__ == "__main__":
     level_rng = np.random.default_rng(args.seed + 1)  # level generation and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
+    # The maze's student acts through a fast path derived from the plain net and checked against it (envs/maze/fast_paths.py, tests/test_fast_paths.py).
     agent = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=args.adam_eps)
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
     storage = Rollout(env, args.num_steps, args.num_envs, device)
     normalizer = ReturnNormalizer(args.num_envs, args.gamma) if args.normalize_returns else None
-    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
-    on_device = rollouts_on_device(env, agent, storage, args, device, normalizer)
+    # The rollout: `collect_rollout` above, or on a GPU the maze's player of whole rollouts on the device, each one CUDA graph
+    # (envs/maze/on_device.py; rollouts_on_device gives None elsewhere). Both play the same env and policy, as
+    # tests/test_maze_on_device.py's test_a_device_rollout_is_what_the_numpy_env_and_the_plain_net_play checks.
+    device_player = rollouts_on_device(env, agent, storage, args, device, normalizer)
+    play_rollout = device_player or partial(collect_rollout, agent, env, storage=storage, args=args, device=device, normalizer=normalizer)
     state = {"agent": agent, "optimizer": optimizer, "buffer": buffer, "normalizer": normalizer,
              "rng": {"level": level_rng, "env": env.rng}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, agent, metric_names(env), state, device)
@@ -574,12 +609,12 @@ if __name__ == "__main__":
         # Robust PLR: train on replayed levels only; new levels are played and scored.
         agent.eval()
         played = env.draw_starts(levels)  # the start each level is played from (the maze's direction)
-        advantages, returns, returns_per_level = collect_rollout(agent, env, played, storage, args, device, normalizer, on_device)
+        advantages, returns, returns_per_level = play_rollout(played)
         # Every score of every level (the diagnostic logs each); --score-function's ranks the buffer.
         # MaxMC's record of a level: this rollout's highest return, or for a replayed level the buffer's, raised by it.
         highest = highest_returns(returns_per_level)
         highest = buffer.raise_highest_returns(replay_index, highest) if replay else highest
-        scores_of = level_scores(advantages, storage.values, storage.dones, storage.final_dones, returns_per_level, highest,
+        scores_of = level_scores(advantages, storage.values, storage.episode_starts, storage.last_step_ended, returns_per_level, highest,
                                  env.solved_threshold, normalizer)
         scores = scores_of[args.score_function]
         stats = {}
@@ -588,14 +623,14 @@ if __name__ == "__main__":
             stats = ppo_update(agent, optimizer, storage, advantages, returns, args, update, device)
             gradient_updates += 1
             buffer.update_scores(replay_index, scores)
-            # ACCEL's editing: mutate copies of replayed levels, play them without gradient, score them
-            # and offer them to the buffer.
+            # ACCEL's editing: mutate copies of replayed levels (num_envs children, one per env copy), play
+            # them without gradient, score them and offer them to the buffer.
             parents = select_parents(scores, args.edit_levels)
             children = env.mutate(levels[parents], level_rng, num_edits=args.num_edits)
             agent.eval()
-            child_advantages, _, child_returns = collect_rollout(agent, env, children, storage, args, device, normalizer, on_device)
+            child_advantages, _, child_returns = play_rollout(children)
             child_highest = highest_returns(child_returns)
-            child_scores = level_scores(child_advantages, storage.values, storage.dones, storage.final_dones, child_returns, child_highest,
+            child_scores = level_scores(child_advantages, storage.values, storage.episode_starts, storage.last_step_ended, child_returns, child_highest,
                                         env.solved_threshold, normalizer)[args.score_function]
             entered = buffer.insert(children, child_scores, update, child_highest)
             child_metrics, parent_metrics = env.level_metrics(children), env.level_metrics(levels[parents])

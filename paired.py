@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, Optional
 
 import numpy as np
@@ -32,8 +33,8 @@ from envs.runs import check_track_file, fail, parse_command_line, resumed_args, 
 from envs.training_run import Timers, TrainingRun
 
 
-# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
-# of the chosen env.
+# The defaults written here are the maze's; the command line applies the paper's values of the chosen env
+# (PAPER_DEFAULTS and paper_args, after the algorithm).
 @dataclass
 class Args:
     env: Literal[tuple(envs.REGISTRY)] = "maze"
@@ -120,62 +121,6 @@ class Args:
     """updates between PNGs of the levels the teacher made"""
 
 
-# The paper's settings per env (Appendix A, Table of hyperparameters).
-PAPER_DEFAULTS = {
-    "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, teacher_update_epochs=5, teacher_num_minibatches=1, teacher_ent_coef=0.0,
-                 value_loss="clipped", normalize_returns=False, normalize_teacher_returns=False, eval_episodes=100),
-    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
-                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
-                      value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=10),
-    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
-                   value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100),
-}
-PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
-
-# The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {}
-
-
-def paper_args(env: str = "maze", **options) -> Args:
-    """The paper's settings for `env`, then `options` (the command line's defaults)."""
-    return Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
-
-
-def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, and check them."""
-    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
-        args = resumed_args(Args, args, __file__)
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
-    recurrent = student_and_generators(args.env, args.resume)[0].is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
-    if min(args.teacher_update_epochs, args.teacher_num_minibatches) <= 0:
-        fail("--teacher-update-epochs and --teacher-num-minibatches must be positive")
-    if recurrent and args.num_envs % args.teacher_num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --teacher-num-minibatches {args.teacher_num_minibatches}")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
-    if min(args.student_ent_coef, args.teacher_ent_coef) < 0:
-        fail("entropy coefficients must be >= 0")
-    if args.teacher_conv_channels <= 0:
-        fail("--teacher-conv-channels must be positive")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
-           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
-    return args
-
-
 # ---------------------------------------------------------------------------------------------------
 # PPO: rollout storage, return normalization, GAE and the clipped update (whole sequences for an LSTM).
 # ---------------------------------------------------------------------------------------------------
@@ -189,16 +134,16 @@ class Rollout:
         self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
         self.logprobs = torch.zeros(num_steps, n, device=device)
         self.rewards = torch.zeros(num_steps, n, device=device)
-        self.dones = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
+        self.episode_starts = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
         self.values = torch.zeros(num_steps, n, device=device)
 
 
-def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
-    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value. The recurrence
-    runs in numpy on one copy of the rollout: as 256 steps of tiny tensor ops it would launch (and wait
-    for) a dozen kernels per step on a GPU."""
-    rewards, values, dones = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.dones))
-    next_nonterminal = 1.0 - np.concatenate([dones[1:], next_done.cpu().numpy()[None]])
+def gae(storage: Rollout, next_value, last_step_ended, gamma: float, gae_lambda: float):
+    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value in the copies
+    whose last step ended no episode (last_step_ended [N]). The recurrence runs in numpy on one copy of the
+    rollout: as 256 steps of tiny tensor ops it would launch (and wait for) a dozen kernels per step on a GPU."""
+    rewards, values, episode_starts = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.episode_starts))
+    next_nonterminal = 1.0 - np.concatenate([episode_starts[1:], last_step_ended.cpu().numpy()[None]])
     following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
     delta = rewards + gamma * following * next_nonterminal - values
     advantages = np.empty_like(rewards)
@@ -211,25 +156,23 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`)."""
-    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
-        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
+    episode_start = torch.ones(args.num_envs, device=device)
     episode_returns = [[] for _ in range(args.num_envs)]
     running_return = np.zeros(args.num_envs)
     for step in range(args.num_steps):
         obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
             storage.obs[k][step] = v
-        storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(obs, state, done)
+        storage.episode_starts[step] = episode_start
+        action, logprob, _, value, state = agent.get_action_and_value(obs, state, episode_start)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
@@ -242,9 +185,9 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
         running_return[ended] = 0.0
         # An episode that hits the env's step limit ends like a terminal one (no time input; as the
         # reference); the rollout's own end is a truncation, bootstrapped from the value.
-        done = torch.as_tensor(ended, dtype=torch.float32, device=device)
-    next_value = agent.get_value(to_torch(obs, device), state, done)
-    advantages, returns = gae(storage, next_value, done, args.gamma, args.gae_lambda)
+        episode_start = torch.as_tensor(ended, dtype=torch.float32, device=device)
+    next_value = agent.get_value(to_torch(obs, device), state, episode_start)
+    advantages, returns = gae(storage, next_value, last_step_ended=episode_start, gamma=args.gamma, gae_lambda=args.gae_lambda)
     return advantages, returns, episode_returns
 
 
@@ -304,7 +247,9 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
         for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
             flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
-            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.dones), flat(storage.actions))
+            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions))
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
             if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
@@ -334,18 +279,18 @@ def teacher_rollout(teacher, mdp, storage: Rollout, args: Args, device):
     """Algorithm 1, line 3: the teacher designs a batch of levels. Returns the levels."""
     obs = mdp.reset(args.num_envs)
     state = teacher.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
+    episode_start = torch.ones(args.num_envs, device=device)
     for step in range(mdp.num_steps):
         obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
             storage.obs[k][step] = v
-        storage.dones[step] = done
-        action, logprob, _, value, state = teacher.get_action_and_value(obs, state, done)
+        storage.episode_starts[step] = episode_start
+        action, logprob, _, value, state = teacher.get_action_and_value(obs, state, episode_start)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
         obs, _ = mdp.step(action.cpu().numpy())
-        done = torch.zeros(args.num_envs, device=device)
+        episode_start = torch.zeros(args.num_envs, device=device)
     return mdp.levels()
 
 
@@ -366,7 +311,9 @@ def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args
     reward = level_regret if normalizer is None else normalizer(level_regret, np.ones(n, dtype=bool))
     storage.rewards.zero_()
     storage.rewards[-1] = torch.as_tensor(reward, dtype=torch.float32, device=device)
-    return gae(storage, torch.zeros(n, device=device), torch.ones(n, device=device), args.gamma, args.gae_lambda)
+    # The design episode ends at its last step: nothing is bootstrapped after it.
+    return gae(storage, next_value=torch.zeros(n, device=device), last_step_ended=torch.ones(n, device=device), gamma=args.gamma,
+               gae_lambda=args.gae_lambda)
 
 # ---------------------------------------------------------------------------------------------------
 # What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
@@ -401,6 +348,65 @@ def metrics_row(env, levels, returns_of: dict, level_regret, teacher_storage: Ro
             **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret), **timers.columns()}
 
 
+# ---------------------------------------------------------------------------------------------------
+# Options: the paper's values per env (the defaults `Args` takes for --env), and resolve_args, which checks a run's arguments.
+# ---------------------------------------------------------------------------------------------------
+# The paper's settings per env (Appendix A, Table of hyperparameters).
+PAPER_DEFAULTS = {
+    "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, teacher_update_epochs=5, teacher_num_minibatches=1, teacher_ent_coef=0.0,
+                 value_loss="clipped", normalize_returns=False, normalize_teacher_returns=False, eval_episodes=100),
+    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
+                      value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=10),
+    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, teacher_update_epochs=8, teacher_num_minibatches=4, teacher_ent_coef=0.0,
+                   value_loss="huber", normalize_returns=True, normalize_teacher_returns=True, eval_episodes=100),
+}
+PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {}
+
+
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options` (the command line's defaults)."""
+    return Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
+
+
+def resolve_args(args: Args) -> Args:
+    """Load a resumed run's arguments, and check them."""
+    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
+        args = resumed_args(Args, args, __file__)
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
+    check_track_file(args)
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
+    recurrent = student_and_generators(args.env, args.resume)[0].is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
+    if min(args.teacher_update_epochs, args.teacher_num_minibatches) <= 0:
+        fail("--teacher-update-epochs and --teacher-num-minibatches must be positive")
+    if recurrent and args.num_envs % args.teacher_num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --teacher-num-minibatches {args.teacher_num_minibatches}")
+    if recurrent and args.num_envs % args.num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
+    if min(args.student_ent_coef, args.teacher_ent_coef) < 0:
+        fail("entropy coefficients must be >= 0")
+    if args.teacher_conv_channels <= 0:
+        fail("--teacher-conv-channels must be positive")
+    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
+        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+    return args
+
+
 if __name__ == "__main__":
     args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
     device = select_device(args.cuda, args.torch_deterministic, args.env)
@@ -411,19 +417,25 @@ if __name__ == "__main__":
     mdp = env.teacher()
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
+    # The maze's nets act through fast paths derived from the plain nets and checked against them (envs/maze/fast_paths.py, tests/test_fast_paths.py).
     protagonist = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     antagonist = student_class(env, args.resume)().to(device)
     teacher_options = {"conv_channels": args.teacher_conv_channels} if args.env in ("maze", "maze25") else {}
     teacher = env.Teacher(mdp.num_steps, **teacher_options).to(device)
     agents = {"protagonist": protagonist, "antagonist": antagonist, "teacher": teacher}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in agents.items()}
+    # Shaped after a first observation of random levels: a reset that is part of the run's random stream (the maze draws start directions).
     student_storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
     teacher_storage = Rollout(mdp.reset(args.num_envs), mdp.action_space, mdp.num_steps, args.num_envs, device)
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in ("protagonist", "antagonist")} if args.normalize_returns else {}
     if args.normalize_teacher_returns:
         normalizers["teacher"] = ReturnNormalizer(args.num_envs, args.gamma)
-    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
-    on_device = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name)) for name in ("protagonist", "antagonist")}
+    # Each student's rollout: `student_rollout` above, or on a GPU the maze's player of whole rollouts on the device, each one
+    # CUDA graph (envs/maze/on_device.py; rollouts_on_device gives None elsewhere). Both play the same env and policy, as
+    # tests/test_maze_on_device.py's test_a_device_rollout_is_what_the_numpy_env_and_the_plain_net_play checks.
+    play_rollout = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name))
+                    or partial(student_rollout, agents[name], env, storage=student_storage, args=args, device=device, normalizer=normalizers.get(name))
+                    for name in ("protagonist", "antagonist")}
     state = {**agents, **{name + "_optimizer": o for name, o in optimizers.items()}, "env_rng": env.rng,
              **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -443,8 +455,7 @@ if __name__ == "__main__":
         stats, returns_of = {}, {}
         for name in ("protagonist", "antagonist"):
             with timers("student_rollouts"):
-                advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device,
-                                                                        normalizers.get(name), on_device[name])
+                advantages, returns, returns_of[name] = play_rollout[name](levels)
             with timers("student_updates"):
                 agents[name].train()
                 stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, Optional
 
 import numpy as np
@@ -37,8 +38,8 @@ from envs.runs import check_track_file, fail, parse_command_line, resumed_args, 
 from envs.training_run import Timers, TrainingRun
 
 
-# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
-# of the chosen env.
+# The defaults written here are the maze's; the command line applies the paper's values of the chosen env
+# (PAPER_DEFAULTS and paper_args, after the algorithm).
 @dataclass
 class Args:
     env: Literal[tuple(envs.REGISTRY)] = "maze"
@@ -134,6 +135,252 @@ class Args:
     """updates between PNGs of the levels the teacher made"""
 
 
+# ---------------------------------------------------------------------------------------------------
+# PPO: rollout storage, return normalization, GAE and the clipped update (whole sequences for an LSTM).
+# ---------------------------------------------------------------------------------------------------
+class Rollout:
+    """Storage for one rollout of num_steps x n, shaped after a first observation and the action space;
+    reused each update."""
+
+    def __init__(self, first_obs: dict, action_space, num_steps: int, n: int, device):
+        self.obs = {k: torch.zeros((num_steps,) + v.shape, dtype=torch.from_numpy(v).dtype, device=device) for k, v in first_obs.items()}
+        action_dtype = torch.from_numpy(np.zeros(0, action_space.dtype)).dtype
+        self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
+        self.logprobs = torch.zeros(num_steps, n, device=device)
+        self.rewards = torch.zeros(num_steps, n, device=device)
+        self.episode_starts = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
+        self.values = torch.zeros(num_steps, n, device=device)
+
+
+def gae(storage: Rollout, next_value, last_step_ended, gamma: float, gae_lambda: float):
+    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value in the copies
+    whose last step ended no episode (last_step_ended [N]). The recurrence runs in numpy on one copy of the
+    rollout: as 256 steps of tiny tensor ops it would launch (and wait for) a dozen kernels per step on a GPU."""
+    rewards, values, episode_starts = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.episode_starts))
+    next_nonterminal = 1.0 - np.concatenate([episode_starts[1:], last_step_ended.cpu().numpy()[None]])
+    following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
+    delta = rewards + gamma * following * next_nonterminal - values
+    advantages = np.empty_like(rewards)
+    last = np.zeros_like(rewards[0])
+    for t in reversed(range(len(rewards))):
+        last = delta[t] + gamma * gae_lambda * next_nonterminal[t] * last
+        advantages[t] = last
+    advantages = torch.from_numpy(advantages).to(storage.rewards.device)
+    return advantages, advantages + storage.values
+
+
+@torch.no_grad()
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
+    """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
+    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
+    `normalizer`)."""
+    obs = env.reset(levels)
+    if normalizer is not None:
+        normalizer.returns[:] = 0.0  # every rollout starts new episodes
+    state = agent.initial_state(args.num_envs, device)
+    episode_start = torch.ones(args.num_envs, device=device)
+    episode_returns = [[] for _ in range(args.num_envs)]
+    running_return = np.zeros(args.num_envs)
+    for step in range(args.num_steps):
+        obs = to_torch(obs, device)  # one copy to the device, kept in storage
+        for k, v in obs.items():
+            storage.obs[k][step] = v
+        storage.episode_starts[step] = episode_start
+        action, logprob, _, value, state = agent.get_action_and_value(obs, state, episode_start)
+        storage.actions[step] = action
+        storage.logprobs[step] = logprob
+        storage.values[step] = value
+        obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
+        ended = terminated | truncated
+        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
+        running_return += reward
+        for i in np.nonzero(ended)[0]:
+            episode_returns[i].append(running_return[i])
+        running_return[ended] = 0.0
+        # An episode that hits the env's step limit ends like a terminal one (no time input; as the
+        # reference); the rollout's own end is a truncation, bootstrapped from the value.
+        episode_start = torch.as_tensor(ended, dtype=torch.float32, device=device)
+    next_value = agent.get_value(to_torch(obs, device), state, episode_start)
+    advantages, returns = gae(storage, next_value, last_step_ended=episode_start, gamma=args.gamma, gae_lambda=args.gae_lambda)
+    return advantages, returns, episode_returns
+
+
+def cloning_kl(target, dist, obs: dict, initial_state, episode_starts) -> torch.Tensor:
+    """Eq. 1's term: the mean over a batch of KL(pi_target(.|s) || pi(.|s)) on the cloning agent's own
+    observations, the target evaluated without gradient and, if recurrent, from the same zero state
+    (`initial_state`, the cloning agent's: both students are one class) reset at the same episode starts."""
+    with torch.no_grad():
+        target_dist = target.dist(obs, initial_state, episode_starts)
+    return torch.distributions.kl_divergence(target_dist, dist).mean()
+
+
+def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
+    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
+    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
+    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
+    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+    if num_minibatches == 1:
+        yield slice(None)
+        return
+    if recurrent:
+        order = torch.as_tensor(np.random.permutation(n), device=device)
+        copies_per_batch = n // num_minibatches
+        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
+        for start in range(0, n, copies_per_batch):
+            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
+    else:
+        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
+        yield from order.chunk(num_minibatches)
+
+
+def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
+    """Rows of x's flattened time-major batch [T * n, ...]: all of them (a slice, a view) or an index
+    tensor's. On CPU, index_select copies rows of 4-byte words ~10x faster than rows of single bytes, so
+    CarRacing's uint8 image stacks (110,592 bytes a row) are gathered as int32 words: the same bytes."""
+    flat = x.reshape((-1,) + x.shape[2:])
+    if isinstance(rows, slice):
+        return flat[rows]
+    as_words = flat.dtype == torch.uint8 and flat[0].numel() % 4 == 0
+    gathered = (flat.reshape(len(flat), -1).view(torch.int32) if as_words else flat).index_select(0, rows)
+    return gathered.view(torch.uint8).view((-1,) + flat.shape[1:]) if as_words else gathered
+
+
+def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
+    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
+    if args.value_loss == "clipped":
+        clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
+        return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
+    if args.value_loss == "huber":
+        return nn.functional.smooth_l1_loss(value, ret)
+    return 0.5 * ((value - ret) ** 2).mean()
+
+
+# The statistics of a PPO update, as CleanRL logs them: losses, entropy, approximate KL and clipped share.
+PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
+
+
+def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, update_epochs: int, num_minibatches: int,
+               args: Args, update: int, device, clone_target=None, bc_coef: float = 0.0) -> dict:
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
+    every minibatch loss adds bc_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
+    num_steps, n = storage.rewards.shape
+    state = agent.initial_state(n // num_minibatches, device)  # every rollout starts from a fresh state
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    kl_sum = torch.zeros((), device=device)
+    finite = torch.ones((), dtype=torch.bool, device=device)
+    for _ in range(update_epochs):
+        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
+            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
+            obs = {k: flat(v) for k, v in storage.obs.items()}
+            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+            dist, value = agent.dist_and_value(obs, state, flat(storage.episode_starts))
+            logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
+            ratio = (logprob - flat(storage.logprobs)).exp()
+            adv = flat(advantages)
+            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
+                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+            policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
+            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
+            loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
+            if clone_target is not None:
+                kl = cloning_kl(clone_target, dist, obs, initial_state=state, episode_starts=flat(storage.episode_starts))
+                loss = loss + bc_coef * kl
+                kl_sum += kl.detach()
+            optimizer.zero_grad()
+            loss.backward()
+            grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+            finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
+            with torch.no_grad():
+                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
+    if not finite:  # the run stops before its next checkpoint
+        raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
+    count = update_epochs * num_minibatches
+    return {**dict(zip(PPO_STATS, (sums / count).tolist())), "kl": (kl_sum / count).item()}
+
+
+# ---------------------------------------------------------------------------------------------------
+# The teacher: it designs levels step by step and is rewarded by the regret.
+# ---------------------------------------------------------------------------------------------------
+@torch.no_grad()
+def teacher_rollout(teacher, mdp, storage: Rollout, args: Args, device):
+    """Algorithm 1, line 3: the teacher designs a batch of levels. Returns the levels."""
+    obs = mdp.reset(args.num_envs)
+    state = teacher.initial_state(args.num_envs, device)
+    episode_start = torch.ones(args.num_envs, device=device)
+    for step in range(mdp.num_steps):
+        obs = to_torch(obs, device)  # one copy to the device, kept in storage
+        for k, v in obs.items():
+            storage.obs[k][step] = v
+        storage.episode_starts[step] = episode_start
+        action, logprob, _, value, state = teacher.get_action_and_value(obs, state, episode_start)
+        storage.actions[step] = action
+        storage.logprobs[step] = logprob
+        storage.values[step] = value
+        obs, _ = mdp.step(action.cpu().numpy())
+        episode_start = torch.zeros(args.num_envs, device=device)
+    return mdp.levels()
+
+
+def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
+    """Algorithm 1, line 8, per level: max(0, max antagonist return - mean protagonist return) over the
+    episodes each completed in its rollout (a student with no completed episode counts 0)."""
+    protagonist = np.array([np.mean(r) if r else 0.0 for r in protagonist_returns])
+    antagonist = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
+    return np.maximum(antagonist - protagonist, 0.0)
+
+
+@torch.no_grad()
+def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args: Args, device):
+    """Algorithm 1, line 9: each level's regret is its teacher's reward at the last design step (divided
+    by the running std of the teacher's return if `normalizer`: CarRacing and walker), the only reward of
+    an episode that ends there. Returns the teacher's GAE advantages and returns over its design steps."""
+    n = len(level_regret)
+    reward = level_regret if normalizer is None else normalizer(level_regret, np.ones(n, dtype=bool))
+    storage.rewards.zero_()
+    storage.rewards[-1] = torch.as_tensor(reward, dtype=torch.float32, device=device)
+    # The design episode ends at its last step: nothing is bootstrapped after it.
+    return gae(storage, next_value=torch.zeros(n, device=device), last_step_ended=torch.ones(n, device=device), gamma=args.gamma,
+               gae_lambda=args.gae_lambda)
+
+# ---------------------------------------------------------------------------------------------------
+# What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
+# envs/training_run.py).
+# ---------------------------------------------------------------------------------------------------
+def metric_names(env) -> list[str]:
+    """The columns of metrics.csv: one row per update, the env's level metrics among them."""
+    return ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
+            "protagonist_solved", "antagonist_solved", *env.level_metric_names, "optimal_return", "solvable", "true_regret",
+            "score_true_regret_correlation", *(f"{name}_{stat}" for name in ("protagonist", "antagonist", "teacher") for stat in PPO_STATS),
+            "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
+            "time_teacher_update", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
+
+
+def episode_mean(returns_per_level, threshold=None) -> float:
+    flat = [r for rs in returns_per_level for r in rs]
+    if not flat:  # no episode finished: a gap in the curves, not a return of 0
+        return float("nan")
+    return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
+
+
+def metrics_row(env, levels, returns_of: dict, level_regret, teacher_storage: Rollout, stats: dict, timers: Timers, **columns) -> dict:
+    """One update's row: `columns` (update, steps...), the students' returns and solved rates, the teacher's
+    return and the regret, PPO's statistics of the three agents, the levels' complexity, how well the
+    regret tracks the true regret (where the env knows it) and the time spent in each part of the update."""
+    return {**columns, "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
+            "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
+            "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
+            "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
+            **{f"{name}_{stat}": stats[name][stat] for name in stats for stat in PPO_STATS},
+            **{k: float(np.mean(v)) for k, v in env.level_metrics(levels).items()},
+            **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret), **timers.columns()}
+
+
+# ---------------------------------------------------------------------------------------------------
+# Options: the paper's values per env (the defaults `Args` takes for --env), and resolve_args, which checks a run's arguments.
+# ---------------------------------------------------------------------------------------------------
 # The paper's settings per env (Appendix A, Table of hyperparameters). The table has no
 # walker BC row: the walker takes its combined setting's BC values (Appendix C).
 PAPER_DEFAULTS = {
@@ -203,246 +450,6 @@ def resolve_args(args: Args) -> Args:
     return args
 
 
-# ---------------------------------------------------------------------------------------------------
-# PPO: rollout storage, return normalization, GAE and the clipped update (whole sequences for an LSTM).
-# ---------------------------------------------------------------------------------------------------
-class Rollout:
-    """Storage for one rollout of num_steps x n, shaped after a first observation and the action space;
-    reused each update."""
-
-    def __init__(self, first_obs: dict, action_space, num_steps: int, n: int, device):
-        self.obs = {k: torch.zeros((num_steps,) + v.shape, dtype=torch.from_numpy(v).dtype, device=device) for k, v in first_obs.items()}
-        action_dtype = torch.from_numpy(np.zeros(0, action_space.dtype)).dtype
-        self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
-        self.logprobs = torch.zeros(num_steps, n, device=device)
-        self.rewards = torch.zeros(num_steps, n, device=device)
-        self.dones = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
-        self.values = torch.zeros(num_steps, n, device=device)
-
-
-def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
-    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value. The recurrence
-    runs in numpy on one copy of the rollout: as 256 steps of tiny tensor ops it would launch (and wait
-    for) a dozen kernels per step on a GPU."""
-    rewards, values, dones = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.dones))
-    next_nonterminal = 1.0 - np.concatenate([dones[1:], next_done.cpu().numpy()[None]])
-    following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
-    delta = rewards + gamma * following * next_nonterminal - values
-    advantages = np.empty_like(rewards)
-    last = np.zeros_like(rewards[0])
-    for t in reversed(range(len(rewards))):
-        last = delta[t] + gamma * gae_lambda * next_nonterminal[t] * last
-        advantages[t] = last
-    advantages = torch.from_numpy(advantages).to(storage.rewards.device)
-    return advantages, advantages + storage.values
-
-
-@torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
-    """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
-    returns of its completed episodes (the env's own rewards; training uses the normalized ones if
-    `normalizer`)."""
-    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
-        return on_device(levels)
-    obs = env.reset(levels)
-    if normalizer is not None:
-        normalizer.returns[:] = 0.0  # every rollout starts new episodes
-    state = agent.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
-    episode_returns = [[] for _ in range(args.num_envs)]
-    running_return = np.zeros(args.num_envs)
-    for step in range(args.num_steps):
-        obs = to_torch(obs, device)  # one copy to the device, kept in storage
-        for k, v in obs.items():
-            storage.obs[k][step] = v
-        storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(obs, state, done)
-        storage.actions[step] = action
-        storage.logprobs[step] = logprob
-        storage.values[step] = value
-        obs, reward, terminated, truncated, _ = env.step(action.cpu().numpy())
-        ended = terminated | truncated
-        storage.rewards[step] = torch.from_numpy(reward if normalizer is None else normalizer(reward, ended))
-        running_return += reward
-        for i in np.nonzero(ended)[0]:
-            episode_returns[i].append(running_return[i])
-        running_return[ended] = 0.0
-        # An episode that hits the env's step limit ends like a terminal one (no time input; as the
-        # reference); the rollout's own end is a truncation, bootstrapped from the value.
-        done = torch.as_tensor(ended, dtype=torch.float32, device=device)
-    next_value = agent.get_value(to_torch(obs, device), state, done)
-    advantages, returns = gae(storage, next_value, done, args.gamma, args.gae_lambda)
-    return advantages, returns, episode_returns
-
-
-def cloning_kl(target, dist, obs: dict, state, done) -> torch.Tensor:
-    """Eq. 1's term: the mean over a batch of KL(pi_target(.|s) || pi(.|s)) on the cloning agent's own
-    observations (and recurrent state); the target's policy is evaluated without gradient."""
-    with torch.no_grad():
-        target_dist = target.dist(obs, state, done)
-    return torch.distributions.kl_divergence(target_dist, dist).mean()
-
-
-def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
-    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
-    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
-    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
-    if num_minibatches == 1:
-        yield slice(None)
-        return
-    if recurrent:
-        order = torch.as_tensor(np.random.permutation(n), device=device)
-        copies_per_batch = n // num_minibatches
-        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
-        for start in range(0, n, copies_per_batch):
-            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
-    else:
-        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
-        yield from order.chunk(num_minibatches)
-
-
-def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
-    """Rows of x's flattened time-major batch [T * n, ...]: all of them (a slice, a view) or an index
-    tensor's. On CPU, index_select copies rows of 4-byte words ~10x faster than rows of single bytes, so
-    CarRacing's uint8 image stacks (110,592 bytes a row) are gathered as int32 words: the same bytes."""
-    flat = x.reshape((-1,) + x.shape[2:])
-    if isinstance(rows, slice):
-        return flat[rows]
-    as_words = flat.dtype == torch.uint8 and flat[0].numel() % 4 == 0
-    gathered = (flat.reshape(len(flat), -1).view(torch.int32) if as_words else flat).index_select(0, rows)
-    return gathered.view(torch.uint8).view((-1,) + flat.shape[1:]) if as_words else gathered
-
-
-def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
-    """The value loss: clipped as the surrogate (maze), Huber (CarRacing, walker) or squared error."""
-    if args.value_loss == "clipped":
-        clipped = old_value + (value - old_value).clamp(-args.clip_coef, args.clip_coef)
-        return 0.5 * torch.max((value - ret) ** 2, (clipped - ret) ** 2).mean()
-    if args.value_loss == "huber":
-        return nn.functional.smooth_l1_loss(value, ret)
-    return 0.5 * ((value - ret) ** 2).mean()
-
-
-# The statistics of a PPO update, as CleanRL logs them: losses, entropy, approximate KL and clipped share.
-PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
-
-
-def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, update_epochs: int, num_minibatches: int,
-               args: Args, update: int, device, clone_target=None, bc_coef: float = 0.0) -> dict:
-    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
-    every minibatch loss adds bc_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
-    num_steps, n = storage.rewards.shape
-    state = agent.initial_state(n // num_minibatches, device)  # every rollout starts from a fresh state
-    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
-    kl_sum = torch.zeros((), device=device)
-    finite = torch.ones((), dtype=torch.bool, device=device)
-    for _ in range(update_epochs):
-        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
-            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
-            obs = {k: flat(v) for k, v in storage.obs.items()}
-            dist, value = agent.dist_and_value(obs, state, flat(storage.dones))
-            logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
-            ratio = (logprob - flat(storage.logprobs)).exp()
-            adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
-            loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
-            if clone_target is not None:
-                kl = cloning_kl(clone_target, dist, obs, state, flat(storage.dones))
-                loss = loss + bc_coef * kl
-                kl_sum += kl.detach()
-            optimizer.zero_grad()
-            loss.backward()
-            grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            optimizer.step()
-            finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
-            with torch.no_grad():
-                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
-                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
-    if not finite:  # the run stops before its next checkpoint
-        raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
-    count = update_epochs * num_minibatches
-    return {**dict(zip(PPO_STATS, (sums / count).tolist())), "kl": (kl_sum / count).item()}
-
-
-# ---------------------------------------------------------------------------------------------------
-# The teacher: it designs levels step by step and is rewarded by the regret.
-# ---------------------------------------------------------------------------------------------------
-@torch.no_grad()
-def teacher_rollout(teacher, mdp, storage: Rollout, args: Args, device):
-    """Algorithm 1, line 3: the teacher designs a batch of levels. Returns the levels."""
-    obs = mdp.reset(args.num_envs)
-    state = teacher.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
-    for step in range(mdp.num_steps):
-        obs = to_torch(obs, device)  # one copy to the device, kept in storage
-        for k, v in obs.items():
-            storage.obs[k][step] = v
-        storage.dones[step] = done
-        action, logprob, _, value, state = teacher.get_action_and_value(obs, state, done)
-        storage.actions[step] = action
-        storage.logprobs[step] = logprob
-        storage.values[step] = value
-        obs, _ = mdp.step(action.cpu().numpy())
-        done = torch.zeros(args.num_envs, device=device)
-    return mdp.levels()
-
-
-def regret(protagonist_returns, antagonist_returns) -> np.ndarray:
-    """Algorithm 1, line 8, per level: max(0, max antagonist return - mean protagonist return) over the
-    episodes each completed in its rollout (a student with no completed episode counts 0)."""
-    protagonist = np.array([np.mean(r) if r else 0.0 for r in protagonist_returns])
-    antagonist = np.array([np.max(r) if r else 0.0 for r in antagonist_returns])
-    return np.maximum(antagonist - protagonist, 0.0)
-
-
-@torch.no_grad()
-def teacher_returns(level_regret: np.ndarray, storage: Rollout, normalizer, args: Args, device):
-    """Algorithm 1, line 9: each level's regret is its teacher's reward at the last design step (divided
-    by the running std of the teacher's return if `normalizer`: CarRacing and walker), the only reward of
-    an episode that ends there. Returns the teacher's GAE advantages and returns over its design steps."""
-    n = len(level_regret)
-    reward = level_regret if normalizer is None else normalizer(level_regret, np.ones(n, dtype=bool))
-    storage.rewards.zero_()
-    storage.rewards[-1] = torch.as_tensor(reward, dtype=torch.float32, device=device)
-    return gae(storage, torch.zeros(n, device=device), torch.ones(n, device=device), args.gamma, args.gae_lambda)
-
-# ---------------------------------------------------------------------------------------------------
-# What a run logs: one row of metrics.csv per update (the run directory, checkpoints and evaluations:
-# envs/training_run.py).
-# ---------------------------------------------------------------------------------------------------
-def metric_names(env) -> list[str]:
-    """The columns of metrics.csv: one row per update, the env's level metrics among them."""
-    return ["update", "env_steps", "sps", "protagonist_return", "antagonist_return", "teacher_return", "regret",
-            "protagonist_solved", "antagonist_solved", *env.level_metric_names, "optimal_return", "solvable", "true_regret",
-            "score_true_regret_correlation", *(f"{name}_{stat}" for name in ("protagonist", "antagonist", "teacher") for stat in PPO_STATS),
-            "time_teacher_rollout", "time_student_rollouts", "time_student_updates",
-            "time_teacher_update", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
-
-
-def episode_mean(returns_per_level, threshold=None) -> float:
-    flat = [r for rs in returns_per_level for r in rs]
-    if not flat:  # no episode finished: a gap in the curves, not a return of 0
-        return float("nan")
-    return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
-
-
-def metrics_row(env, levels, returns_of: dict, level_regret, teacher_storage: Rollout, stats: dict, timers: Timers, **columns) -> dict:
-    """One update's row: `columns` (update, steps...), the students' returns and solved rates, the teacher's
-    return and the regret, PPO's statistics of the three agents, the levels' complexity, how well the
-    regret tracks the true regret (where the env knows it) and the time spent in each part of the update."""
-    return {**columns, "protagonist_return": episode_mean(returns_of["protagonist"]), "antagonist_return": episode_mean(returns_of["antagonist"]),
-            "teacher_return": float(teacher_storage.rewards.sum(0).mean()), "regret": float(level_regret.mean()),
-            "protagonist_solved": episode_mean(returns_of["protagonist"], env.solved_threshold),
-            "antagonist_solved": episode_mean(returns_of["antagonist"], env.solved_threshold),
-            **{f"{name}_{stat}": stats[name][stat] for name in stats for stat in PPO_STATS},
-            **{k: float(np.mean(v)) for k, v in env.level_metrics(levels).items()},
-            **true_regret_stats(env.optimal_returns(levels), returns_of["protagonist"], level_regret), **timers.columns()}
-
-
 if __name__ == "__main__":
     args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
     device = select_device(args.cuda, args.torch_deterministic, args.env)
@@ -453,19 +460,25 @@ if __name__ == "__main__":
     mdp = env.teacher()
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
+    # The maze's nets act through fast paths derived from the plain nets and checked against them (envs/maze/fast_paths.py, tests/test_fast_paths.py).
     protagonist = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     antagonist = student_class(env, args.resume)().to(device)
     teacher_options = {"conv_channels": args.teacher_conv_channels} if args.env in ("maze", "maze25") else {}
     teacher = env.Teacher(mdp.num_steps, **teacher_options).to(device)
     agents = {"protagonist": protagonist, "antagonist": antagonist, "teacher": teacher}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in agents.items()}
+    # Shaped after a first observation of random levels: a reset that is part of the run's random stream (the maze draws start directions).
     student_storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
     teacher_storage = Rollout(mdp.reset(args.num_envs), mdp.action_space, mdp.num_steps, args.num_envs, device)
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in ("protagonist", "antagonist")} if args.normalize_returns else {}
     if args.normalize_teacher_returns:
         normalizers["teacher"] = ReturnNormalizer(args.num_envs, args.gamma)
-    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
-    on_device = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name)) for name in ("protagonist", "antagonist")}
+    # Each student's rollout: `student_rollout` above, or on a GPU the maze's player of whole rollouts on the device, each one
+    # CUDA graph (envs/maze/on_device.py; rollouts_on_device gives None elsewhere). Both play the same env and policy, as
+    # tests/test_maze_on_device.py's test_a_device_rollout_is_what_the_numpy_env_and_the_plain_net_play checks.
+    play_rollout = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name))
+                    or partial(student_rollout, agents[name], env, storage=student_storage, args=args, device=device, normalizer=normalizers.get(name))
+                    for name in ("protagonist", "antagonist")}
     state = {**agents, **{name + "_optimizer": o for name, o in optimizers.items()}, "env_rng": env.rng,
              **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -489,8 +502,7 @@ if __name__ == "__main__":
                          "antagonist": protagonist if cloning_update and args.bidirectional else None}
         for name in ("protagonist", "antagonist"):
             with timers("student_rollouts"):
-                advantages, returns, returns_of[name] = student_rollout(agents[name], env, levels, student_storage, args, device,
-                                                                        normalizers.get(name), on_device[name])
+                advantages, returns, returns_of[name] = play_rollout[name](levels)
             with timers("student_updates"):
                 agents[name].train()
                 stats[name] = ppo_update(agents[name], optimizers[name], student_storage, advantages, returns, args.student_ent_coef,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, Optional
 
 import numpy as np
@@ -44,8 +45,8 @@ from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, episode_means, h
 from envs.training_run import TrainingRun
 
 
-# The defaults written here are the maze's; `paper_args(env)` and the command line apply the paper's values
-# of the chosen env.
+# The defaults written here are the maze's; the command line applies the paper's values of the chosen env
+# (PAPER_DEFAULTS and paper_args, after the algorithm).
 @dataclass
 class Args:
     env: Literal[tuple(envs.REGISTRY)] = "maze"
@@ -154,88 +155,6 @@ class Args:
     """updates between checkpoints (written atomically)"""
     levels_interval: int = 500
     """updates between PNGs of the buffer's highest-scoring levels"""
-
-
-# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate; on the maze,
-# ACCEL's empty rooms and staleness 0.3; docs/defaults.md lists each value's source).
-# Evo was not run on CarRacing in the paper: its CarRacing defaults are PLR's buffer with the maze's
-# staleness, and a mutation that moves 3 control points to neighbouring cells.
-PAPER_DEFAULTS = {
-    "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
-                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, value_loss="clipped",
-                 normalize_returns=False, bc_coef=0.0, bc_interval=10, level_buffer_size=4000, temperature=0.3,
-                 staleness_coef=0.3, num_edits=5, generator="empty", eval_episodes=100),
-    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
-                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
-                      normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=10000, temperature=0.3,
-                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
-    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
-                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="huber",
-                   normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=1000, temperature=0.1,
-                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
-}
-PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
-REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # PAIRED+Evo
-FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
-
-# The switches whose value changes other options' defaults: the command line reads them first.
-DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float, "score_function": str,
-                    "generator": str}
-
-
-def paper_args(env: str = "maze", **options) -> Args:
-    """The paper's settings for `env`, then `options`. --flexible takes its own replay rate; a run is named
-    for its variant and a score other than the regret (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient,
-    paired_evo_maxmc...)."""
-    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
-    if "replay_prob" not in options:
-        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB).get(env, args.replay_prob)
-    if "exp_name" not in options:
-        cloning = ("_bibc" if args.bidirectional else "_unibc") if args.bc_coef > 0 else ""
-        args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
-        if args.score_function != "regret":
-            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
-        if args.generator != PAPER_DEFAULTS.get(env, {}).get("generator", args.generator):
-            args.exp_name += "_" + args.generator  # paired_evo_random: new levels from the DR generator
-    return args
-
-
-def resolve_args(args: Args) -> Args:
-    """Load a resumed run's arguments, and check them."""
-    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
-        args = resumed_args(Args, args, __file__)
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
-    student, generators = student_and_generators(args.env, args.resume)
-    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
-    if args.generator not in generators:
-        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
-    if args.student_ent_coef < 0:
-        fail("--student-ent-coef must be >= 0")
-    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
-        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
-    if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
-        fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
-    if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
-        fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
-    if args.bc_coef < 0 or args.bc_interval < 1:
-        fail("--bc-coef must be >= 0 and --bc-interval at least 1")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
-           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
-    return args
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -357,29 +276,30 @@ def decide_replay(buffer_size: int, args: Args, rng: np.random.Generator) -> boo
 
 
 def select_parents(scores: np.ndarray, edit_levels: str) -> np.ndarray:
-    """Indices into the replayed batch of the levels to edit, one per child (as many as the batch):
-    "easy": the half with the lowest scores (the student has most nearly learned them), each twice;
-    "batch": every replayed level once."""
+    """Indices into the replayed batch of the levels to edit, one per child: "easy": the half with the
+    lowest scores (the student has most nearly learned them), each twice; "batch": every replayed level
+    once. Either way one child per env copy, for one rollout to play them all."""
+    num_children = len(scores)  # --num-envs
     if edit_levels == "batch":
-        return np.arange(len(scores))
-    easy = np.argsort(scores, kind="stable")[: len(scores) // 2]
-    return np.concatenate([easy, easy])
+        return np.arange(num_children)
+    easy = np.argsort(scores, kind="stable")[: num_children // 2]
+    return np.concatenate([easy, easy])  # num_children: resolve_args makes --num-envs even for "easy"
 
 
-def positive_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+def positive_value_loss(advantages: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor) -> torch.Tensor:
     """PLR's score per env copy, the paper's eq. 2: the mean over an episode's steps of max(GAE advantage,
-    0), averaged over the rollout's completed episodes (`episode_means`, which MaxMC shares: a copy that
-    completed none is scored on its unfinished episode)."""
-    return episode_means(advantages.clamp(min=0), dones, final_dones)
+    0), averaged over the rollout's completed episodes (envs/scores.py's `episode_means`, which MaxMC
+    shares: a copy that completed none is scored on its unfinished episode)."""
+    return episode_means(advantages.clamp(min=0), episode_starts, last_step_ended)
 
 
-def level_scores(advantages: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor,
+def level_scores(advantages: torch.Tensor, values: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor,
                  returns_per_level, highest: np.ndarray, solved_threshold: float, normalizer) -> dict[str, np.ndarray]:
     """Every score of each level of one rollout, name -> [N]: the positive value loss, and MaxMC and
     learnability (envs/scores.py), which --score-function may choose and the diagnostic logs. highest: each
     level's record of MaxMC (`highest_returns`, raised by the buffer's for a replayed level)."""
-    return {"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),
-            **other_scores(values, dones, final_dones, returns_per_level, highest, solved_threshold, normalizer)}
+    return {"positive_value_loss": positive_value_loss(advantages, episode_starts, last_step_ended).cpu().numpy(),
+            **other_scores(values, episode_starts, last_step_ended, returns_per_level, highest, solved_threshold, normalizer)}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -396,16 +316,16 @@ class Rollout:
         self.actions = torch.zeros((num_steps, n) + action_space.shape, dtype=action_dtype, device=device)
         self.logprobs = torch.zeros(num_steps, n, device=device)
         self.rewards = torch.zeros(num_steps, n, device=device)
-        self.dones = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
+        self.episode_starts = torch.zeros(num_steps, n, device=device)  # 1 where an episode starts at step t
         self.values = torch.zeros(num_steps, n, device=device)
 
 
-def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float):
-    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value. The recurrence
-    runs in numpy on one copy of the rollout: as 256 steps of tiny tensor ops it would launch (and wait
-    for) a dozen kernels per step on a GPU."""
-    rewards, values, dones = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.dones))
-    next_nonterminal = 1.0 - np.concatenate([dones[1:], next_done.cpu().numpy()[None]])
+def gae(storage: Rollout, next_value, last_step_ended, gamma: float, gae_lambda: float):
+    """Generalized advantage estimation; the rollout's end is bootstrapped from next_value in the copies
+    whose last step ended no episode (last_step_ended [N]). The recurrence runs in numpy on one copy of the
+    rollout: as 256 steps of tiny tensor ops it would launch (and wait for) a dozen kernels per step on a GPU."""
+    rewards, values, episode_starts = (x.cpu().numpy() for x in (storage.rewards, storage.values, storage.episode_starts))
+    next_nonterminal = 1.0 - np.concatenate([episode_starts[1:], last_step_ended.cpu().numpy()[None]])
     following = np.concatenate([values[1:], next_value.cpu().numpy()[None]])
     delta = rewards + gamma * following * next_nonterminal - values
     advantages = np.empty_like(rewards)
@@ -418,25 +338,23 @@ def gae(storage: Rollout, next_value, next_done, gamma: float, gae_lambda: float
 
 
 @torch.no_grad()
-def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None, on_device=None):
+def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, normalizer=None):
     """Play one rollout on `levels` (one per copy). Returns advantages, returns and, per copy, the
     returns of its completed episodes (the env's own rewards; training uses the normalized ones if
     `normalizer`)."""
-    if on_device is not None:  # the env's own player of whole rollouts on the GPU (`rollouts_on_device`)
-        return on_device(levels)
     obs = env.reset(levels)
     if normalizer is not None:
         normalizer.returns[:] = 0.0  # every rollout starts new episodes
     state = agent.initial_state(args.num_envs, device)
-    done = torch.ones(args.num_envs, device=device)
+    episode_start = torch.ones(args.num_envs, device=device)
     episode_returns = [[] for _ in range(args.num_envs)]
     running_return = np.zeros(args.num_envs)
     for step in range(args.num_steps):
         obs = to_torch(obs, device)  # one copy to the device, kept in storage
         for k, v in obs.items():
             storage.obs[k][step] = v
-        storage.dones[step] = done
-        action, logprob, _, value, state = agent.get_action_and_value(obs, state, done)
+        storage.episode_starts[step] = episode_start
+        action, logprob, _, value, state = agent.get_action_and_value(obs, state, episode_start)
         storage.actions[step] = action
         storage.logprobs[step] = logprob
         storage.values[step] = value
@@ -449,17 +367,18 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
         running_return[ended] = 0.0
         # An episode that hits the env's step limit ends like a terminal one (no time input; as the
         # reference); the rollout's own end is a truncation, bootstrapped from the value.
-        done = torch.as_tensor(ended, dtype=torch.float32, device=device)
-    next_value = agent.get_value(to_torch(obs, device), state, done)
-    advantages, returns = gae(storage, next_value, done, args.gamma, args.gae_lambda)
+        episode_start = torch.as_tensor(ended, dtype=torch.float32, device=device)
+    next_value = agent.get_value(to_torch(obs, device), state, episode_start)
+    advantages, returns = gae(storage, next_value, last_step_ended=episode_start, gamma=args.gamma, gae_lambda=args.gae_lambda)
     return advantages, returns, episode_returns
 
 
-def cloning_kl(target, dist, obs: dict, state, done) -> torch.Tensor:
+def cloning_kl(target, dist, obs: dict, initial_state, episode_starts) -> torch.Tensor:
     """Eq. 1's term: the mean over a batch of KL(pi_target(.|s) || pi(.|s)) on the cloning agent's own
-    observations (and recurrent state); the target's policy is evaluated without gradient."""
+    observations, the target evaluated without gradient and, if recurrent, from the same zero state
+    (`initial_state`, the cloning agent's: both students are one class) reset at the same episode starts."""
     with torch.no_grad():
-        target_dist = target.dist(obs, state, done)
+        target_dist = target.dist(obs, initial_state, episode_starts)
     return torch.distributions.kl_divergence(target_dist, dist).mean()
 
 
@@ -521,17 +440,19 @@ def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef
         for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
             flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
             obs = {k: flat(v) for k, v in storage.obs.items()}
-            dist, value = agent.dist_and_value(obs, state, flat(storage.dones))
+            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+            dist, value = agent.dist_and_value(obs, state, flat(storage.episode_starts))
             logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
             ratio = (logprob - flat(storage.logprobs)).exp()
             adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
+            if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
             value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
             loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
             if clone_target is not None:
-                kl = cloning_kl(clone_target, dist, obs, state, flat(storage.dones))
+                kl = cloning_kl(clone_target, dist, obs, initial_state=state, episode_starts=flat(storage.episode_starts))
                 loss = loss + bc_coef * kl
                 kl_sum += kl.detach()
             optimizer.zero_grad()
@@ -587,6 +508,91 @@ def metrics_row(env, buffer: LevelBuffer, levels, played, returns_of: dict, regr
             **{k: v for k, v in stats.items() if k not in ("protagonist", "antagonist")}}
 
 
+# ---------------------------------------------------------------------------------------------------
+# Options: the paper's values per env (the defaults `Args` takes for --env), and resolve_args, which checks a run's arguments.
+# ---------------------------------------------------------------------------------------------------
+# The paper's settings per env (Appendix A: Evo uses ACCEL's settings but the replay rate; on the maze,
+# ACCEL's empty rooms and staleness 0.3; docs/defaults.md lists each value's source).
+# Evo was not run on CarRacing in the paper: its CarRacing defaults are PLR's buffer with the maze's
+# staleness, and a mutation that moves 3 control points to neighbouring cells.
+PAPER_DEFAULTS = {
+    "maze": dict(total_timesteps=250_000_000, num_envs=32, num_steps=256, learning_rate=1e-4, gamma=0.995,
+                 gae_lambda=0.95, num_minibatches=1, update_epochs=5, student_ent_coef=0.0, value_loss="clipped",
+                 normalize_returns=False, bc_coef=0.0, bc_interval=10, level_buffer_size=4000, temperature=0.3,
+                 staleness_coef=0.3, num_edits=5, generator="empty", eval_episodes=100),
+    "carracing": dict(total_timesteps=5_500_000, num_envs=16, num_steps=125, learning_rate=3e-4, gamma=0.99,
+                      gae_lambda=0.9, num_minibatches=4, update_epochs=8, student_ent_coef=0.0, value_loss="huber",
+                      normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=10000, temperature=0.3,
+                      staleness_coef=0.5, num_edits=3, generator="sketch", eval_episodes=10),
+    "walker": dict(total_timesteps=960_000_000, num_envs=16, num_steps=2000, learning_rate=3e-4, gamma=0.99,
+                   gae_lambda=0.9, num_minibatches=32, update_epochs=5, student_ent_coef=1e-3, value_loss="huber",
+                   normalize_returns=True, bc_coef=0.0, bc_interval=10, level_buffer_size=1000, temperature=0.1,
+                   staleness_coef=0.5, num_edits=3, generator="easy", eval_episodes=100),
+}
+PAPER_DEFAULTS["maze25"] = dict(PAPER_DEFAULTS["maze"])
+REPLAY_PROB = {"maze": 0.5, "maze25": 0.5, "carracing": 0.5, "walker": 0.5}  # PAIRED+Evo
+FLEXIBLE_REPLAY_PROB = {"maze": 0.9, "maze25": 0.9, "carracing": 0.9, "walker": 0.5}  # FlexPAIRED+Evo
+
+# The switches whose value changes other options' defaults: the command line reads them first.
+DEFAULT_DECIDING = {"flexible": bool, "bc_coef": float, "bidirectional": bool, "student_ent_coef": float, "score_function": str,
+                    "generator": str}
+
+
+def paper_args(env: str = "maze", **options) -> Args:
+    """The paper's settings for `env`, then `options`. --flexible takes its own replay rate; a run is named
+    for its variant and a score other than the regret (paired_evo, flexpaired_evo_bibc, paired_evo_unibc_hient,
+    paired_evo_maxmc...)."""
+    args = Args(env=env, **{**PAPER_DEFAULTS.get(env, {}), **options})
+    if "replay_prob" not in options:
+        args.replay_prob = (FLEXIBLE_REPLAY_PROB if args.flexible else REPLAY_PROB).get(env, args.replay_prob)
+    if "exp_name" not in options:
+        cloning = ("_bibc" if args.bidirectional else "_unibc") if args.bc_coef > 0 else ""
+        args.exp_name = ("flexpaired_evo" if args.flexible else "paired_evo") + cloning + ("_hient" if args.student_ent_coef > 0 else "")
+        if args.score_function != "regret":
+            args.exp_name += "_" + SCORE_FUNCTIONS[args.score_function]
+        if args.generator != PAPER_DEFAULTS.get(env, {}).get("generator", args.generator):
+            args.exp_name += "_" + args.generator  # paired_evo_random: new levels from the DR generator
+    return args
+
+
+def resolve_args(args: Args) -> Args:
+    """Load a resumed run's arguments, and check them."""
+    if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
+        args = resumed_args(Args, args, __file__)
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
+    check_track_file(args)
+    student, generators = student_and_generators(args.env, args.resume)
+    recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
+    if recurrent and args.num_envs % args.num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
+    if args.generator not in generators:
+        fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
+    if args.student_ent_coef < 0:
+        fail("--student-ent-coef must be >= 0")
+    if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
+        fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
+    if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
+        fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
+    if args.num_edits < 1 or (args.edit_levels == "easy" and args.num_envs % 2):
+        fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
+    if args.bc_coef < 0 or args.bc_interval < 1:
+        fail("--bc-coef must be >= 0 and --bc-interval at least 1")
+    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+           args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
+        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+    return args
+
+
 if __name__ == "__main__":
     args = resolve_args(parse_command_line(Args, paper_args, DEFAULT_DECIDING, __doc__))
     device = select_device(args.cuda, args.torch_deterministic, args.env)
@@ -598,15 +604,21 @@ if __name__ == "__main__":
     level_rng = np.random.default_rng(args.seed + 1)  # level generation, edits and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
+    # The maze's students act through a fast path derived from the plain net and checked against it (envs/maze/fast_paths.py, tests/test_fast_paths.py).
     protagonist = student_class(env, args.resume)().to(device)  # a resumed run's own student class
     antagonist = student_class(env, args.resume)().to(device)
     students = {"protagonist": protagonist, "antagonist": antagonist}
     optimizers = {name: torch.optim.Adam(a.parameters(), lr=args.learning_rate, eps=args.adam_eps) for name, a in students.items()}
     buffer = LevelBuffer(args.level_buffer_size, args.temperature, args.staleness_coef, env.Levels)
+    # Shaped after a first observation of random levels: a reset that is part of the run's random stream (the maze draws start directions).
     storage = Rollout(env.reset(env.random_levels(args.num_envs, np.random.default_rng(0))), env.single_action_space, args.num_steps, args.num_envs, device)
     normalizers = {name: ReturnNormalizer(args.num_envs, args.gamma) for name in students} if args.normalize_returns else {}
-    # On a GPU the maze's rollouts run whole on the device, its env included (envs/maze/on_device.py).
-    on_device = {name: rollouts_on_device(env, student, storage, args, device, normalizers.get(name)) for name, student in students.items()}
+    # Each student's rollout: `student_rollout` above, or on a GPU the maze's player of whole rollouts on the device, each one
+    # CUDA graph (envs/maze/on_device.py; rollouts_on_device gives None elsewhere). Both play the same env and policy, as
+    # tests/test_maze_on_device.py's test_a_device_rollout_is_what_the_numpy_env_and_the_plain_net_play checks.
+    play_rollout = {name: rollouts_on_device(env, student, storage, args, device, normalizers.get(name))
+                    or partial(student_rollout, student, env, storage=storage, args=args, device=device, normalizer=normalizers.get(name))
+                    for name, student in students.items()}
     state = {**students, **{name + "_optimizer": o for name, o in optimizers.items()}, "buffer": buffer, "level_rng": level_rng,
              "env_rng": env.rng, **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -616,8 +628,8 @@ if __name__ == "__main__":
 
     def protagonist_scores(advantages, returns_per_level, highest) -> dict:
         """Every level score of the protagonist's rollout just played (the antagonist's next overwrites it)."""
-        final_dones = ended_at_rollout_end(storage.dones, returns_per_level)
-        return level_scores(advantages, storage.values, storage.dones, final_dones, returns_per_level, highest,
+        last_step_ended = ended_at_rollout_end(storage.episode_starts, returns_per_level)
+        return level_scores(advantages, storage.values, storage.episode_starts, last_step_ended, returns_per_level, highest,
                             env.solved_threshold, normalizers.get("protagonist"))
 
     def play_and_score(levels):
@@ -627,7 +639,7 @@ if __name__ == "__main__":
         returns_of = {}
         for name in ("protagonist", "antagonist"):
             students[name].eval()
-            advantages, _, returns_of[name] = student_rollout(students[name], env, levels, storage, args, device, normalizers.get(name), on_device[name])
+            advantages, _, returns_of[name] = play_rollout[name](levels)
             if name == "protagonist":
                 highest = highest_returns(returns_of[name])
                 scores_of = protagonist_scores(advantages, returns_of[name], highest)
@@ -651,7 +663,7 @@ if __name__ == "__main__":
                              "antagonist": protagonist if cloning_update and args.bidirectional else None}
             for name in ("protagonist", "antagonist"):
                 students[name].eval()
-                advantages, returns, returns_of[name] = student_rollout(students[name], env, played, storage, args, device, normalizers.get(name), on_device[name])
+                advantages, returns, returns_of[name] = play_rollout[name](played)
                 if name == "protagonist":
                     highest = buffer.raise_highest_returns(replay_index, highest_returns(returns_of[name]))
                     scores_of = protagonist_scores(advantages, returns_of[name], highest)

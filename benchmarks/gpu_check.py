@@ -158,6 +158,15 @@ def time_script(report_path: str, updates: str, path: str, *argv: str) -> None:
         for name in totals:
             if name in namespace:
                 namespace[name] = timed(name, namespace[name])
+        # The main block plays its student rollouts by the device player where rollouts_on_device gives one,
+        # in place of its rollout function: the player is timed as that function.
+        choose_player = namespace["rollouts_on_device"]
+        rollout_function = "collect_rollout" if "collect_rollout" in namespace else "student_rollout"
+
+        def timed_player(*given, **options):
+            player = choose_player(*given, **options)
+            return None if player is None else timed(rollout_function, player)
+        namespace["rollouts_on_device"] = timed_player
 
         class TimedRun(namespace["TrainingRun"]):
             """The script's run, recording each update once its row is written (end_update, once per update)."""

@@ -56,31 +56,31 @@ def rollout_and_score():
     global advantages, returns
     levels = env.random_levels(args.num_envs, rng)
     advantages, returns, returns_per_level = plr.collect_rollout(agent, env, levels, storage, args, "cpu")
-    scores = plr.positive_value_loss(advantages, storage.dones, storage.final_dones).numpy()
+    scores = plr.positive_value_loss(advantages, storage.episode_starts, storage.last_step_ended).numpy()
     buffer.insert(levels, scores, 1, highest_returns(returns_per_level))
 
 
 t_rollout = timed(rollout_and_score)
 t_update = timed(lambda: plr.ppo_update(agent, optimizer, storage, advantages, returns, args, 1, "cpu"))
-episode_starts = int(storage.dones.sum())
+episode_starts = int(storage.episode_starts.sum())
 
 
 def sequence_loop():
     state = agent.initial_state(args.num_envs)
     obs = {k: v.reshape((-1,) + v.shape[2:]) for k, v in storage.obs.items()}
-    dones = storage.dones.reshape(-1)
+    starts = storage.episode_starts.reshape(-1)
     n = args.num_envs
     outs = []
     for t in range(args.num_steps):
         rows = slice(t * n, (t + 1) * n)
-        _, logprob, _, value, state = agent.get_action_and_value({k: v[rows] for k, v in obs.items()}, state, dones[rows], storage.actions[t])
+        _, logprob, _, value, state = agent.get_action_and_value({k: v[rows] for k, v in obs.items()}, state, starts[rows], storage.actions[t])
         outs.append(logprob + value)
     torch.stack(outs).sum().backward()
 
 
 def sequence_fast():
     obs = {k: v.reshape((-1,) + v.shape[2:]) for k, v in storage.obs.items()}
-    _, logprob, _, value, _ = agent.get_action_and_value(obs, agent.initial_state(args.num_envs), storage.dones.reshape(-1), storage.actions.reshape(-1))
+    _, logprob, _, value, _ = agent.get_action_and_value(obs, agent.initial_state(args.num_envs), storage.episode_starts.reshape(-1), storage.actions.reshape(-1))
     (logprob + value).sum().backward()
 
 
@@ -96,8 +96,8 @@ print(f"Robust PLR (trains on half, p = 0.5):  {batch / (t_rollout + args.replay
 
 # A trained student ends many short episodes per rollout: more reset steps in the LSTM's sequence.
 for mean_length in (20, 60):
-    storage.dones.copy_((torch.rand_like(storage.dones) < 1.0 / mean_length).float())
-    storage.dones[0] = 1.0
+    storage.episode_starts.copy_((torch.rand_like(storage.episode_starts) < 1.0 / mean_length).float())
+    storage.episode_starts[0] = 1.0
     t_short = timed(lambda: plr.ppo_update(agent, optimizer, storage, advantages, returns, args, 1, "cpu"))
-    print(f"PPO update with episodes of mean length {mean_length}: {t_short * 1000:7.1f} ms ({int(storage.dones.sum())} episode starts); "
+    print(f"PPO update with episodes of mean length {mean_length}: {t_short * 1000:7.1f} ms ({int(storage.episode_starts.sum())} episode starts); "
           f"DR {batch / (t_rollout + t_short):.0f}, Robust PLR {batch / (t_rollout + args.replay_prob * t_short):.0f} steps/s")

@@ -22,10 +22,10 @@ def layer_init(layer: nn.Module, gain: float = math.sqrt(2), bias: float = 0.0) 
     return layer
 
 
-# The reset steps' input drives the input and forget gates' pre-activations to -RESET_DRIVE: their
-# sigmoids are exactly 0 in float32 (for pre-activations below about -104, however the sigmoid is
-# computed) with any state and weights a network could reach.
-RESET_DRIVE = 1e6
+# The weight from a reset step's input (a feature of 1) into the input and forget gates: it drives their
+# pre-activations to about -1e6, where their sigmoids are exactly 0 in float32 (below about -104, however
+# the sigmoid is computed) with any state and weights a network could reach, so the state becomes zero.
+GATE_SHUTTING_RESET_WEIGHT = -1e6
 
 
 class ResettableLSTM(nn.Module):
@@ -54,10 +54,10 @@ class ResettableLSTM(nn.Module):
                 nn.init.constant_(param, 0.0)
             else:
                 nn.init.orthogonal_(param, 1.0)
-        # The reset input's weights: -RESET_DRIVE into the input and forget gates (PyTorch's gate order
-        # i, f, g, o), nothing into the others.
+        # The reset input's weights: GATE_SHUTTING_RESET_WEIGHT into the input and forget gates (PyTorch's
+        # gate order i, f, g, o), nothing into the others.
         reset_weight = torch.zeros(4 * hidden_size, 1)
-        reset_weight[: 2 * hidden_size] = -RESET_DRIVE
+        reset_weight[: 2 * hidden_size] = GATE_SHUTTING_RESET_WEIGHT
         self.register_buffer("reset_weight", reset_weight, persistent=False)
 
     def initial_state(self, n: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -26,6 +26,8 @@ DIFFERENT_BY_DESIGN = {
     "ppo_update": ([PLR_FAMILY, ["paired.py", "paired_hient.py"]], "paired_bc.py and paired_evo.py add the cloning term"),
     "regret": ([["paired.py", "paired_hient.py", "paired_bc.py"]], "PAIRED+Evo's buffer score is not clipped at 0"),
 }
+# name: the module of envs/ that holds the same code for its other users (a script writes it out for its reader).
+HELD_IN_ENVS_TOO = {"episode_means": "envs/scores.py"}
 
 
 def without_docstrings(node: ast.AST) -> ast.AST:
@@ -84,6 +86,16 @@ def test_a_changed_copy_fails_until_it_is_listed_as_diverging_on_purpose():
     others = [script for script in SCRIPTS if script != "plr.py" and "decide_replay" in DEFINITIONS[script]]
     marked = {**DIFFERENT_BY_DESIGN, "decide_replay": ([others], "plr.py decides replay at its edge otherwise")}
     assert differing_copies(definitions, "decide_replay", marked) == []
+
+
+@pytest.mark.parametrize("name", sorted(HELD_IN_ENVS_TOO))
+def test_a_helper_the_scripts_write_out_is_the_code_envs_runs(name):
+    """PLR's averaging over completed episodes is written in plr.py and accel.py, where their reader reads
+    the score whole, and in envs/scores.py for MaxMC and paired_evo.py: catches one copy changed alone."""
+    module_copy = top_level_definitions(read(HELD_IN_ENVS_TOO[name]))[name]
+    holders = [script for script in SCRIPTS if name in DEFINITIONS[script]]
+    differing = [script for script in holders if DEFINITIONS[script][name] != module_copy]
+    assert holders and not differing, f"{name} in {', '.join(differing)} differs from its copy in {HELD_IN_ENVS_TOO[name]}"
 
 
 @pytest.mark.parametrize("name", sorted(DIFFERENT_BY_DESIGN))

@@ -78,7 +78,7 @@ def replay_on_numpy_env_and_plain_net(agent, levels, storage, numpy_env: MazeEnv
     for step, action in enumerate(storage.actions.numpy()):
         np.testing.assert_array_equal(storage.obs["image"][step].numpy(), obs["image"])
         np.testing.assert_array_equal(storage.obs["direction"][step].numpy(), obs["direction"])
-        np.testing.assert_array_equal(storage.dones[step].numpy(), ended)
+        np.testing.assert_array_equal(storage.episode_starts[step].numpy(), ended)
         obs, reward, terminated, truncated, _ = numpy_env.step(action)
         ended = terminated | truncated
         np.testing.assert_array_equal(storage.rewards[step].numpy(), reward)
@@ -86,18 +86,18 @@ def replay_on_numpy_env_and_plain_net(agent, levels, storage, numpy_env: MazeEnv
         for i in np.nonzero(ended)[0]:
             returns[i].append(running[i])
         running[ended] = 0.0
-    np.testing.assert_array_equal(storage.final_dones.numpy(), ended)
+    np.testing.assert_array_equal(storage.last_step_ended.numpy(), ended)
     assert episode_returns == returns
     state = agent.initial_state(len(levels))
     with torch.no_grad():  # the plain net, step by step: with the action given, no fast path runs
         for step in range(len(storage.actions)):
             step_obs = {k: v[step] for k, v in storage.obs.items()}
-            _, logprob, _, value, state = agent.get_action_and_value(step_obs, state, storage.dones[step], storage.actions[step])
+            _, logprob, _, value, state = agent.get_action_and_value(step_obs, state, storage.episode_starts[step], storage.actions[step])
             torch.testing.assert_close(storage.logprobs[step], logprob, atol=1e-4, rtol=0)
             torch.testing.assert_close(storage.values[step], value, atol=1e-4, rtol=0)
         next_value = agent.get_value({k: torch.as_tensor(v) for k, v in obs.items()}, state, torch.as_tensor(ended).float())
     # GAE as the scripts compute it, on the host.
-    values, rewards, starts = storage.values.numpy(), storage.rewards.numpy(), storage.dones.numpy()
+    values, rewards, starts = storage.values.numpy(), storage.rewards.numpy(), storage.episode_starts.numpy()
     next_nonterminal = 1.0 - np.concatenate([starts[1:], ended[None]]).astype(np.float32)
     delta = rewards + gamma * np.concatenate([values[1:], next_value.numpy()[None]]) * next_nonterminal - values
     expected, last = np.empty_like(rewards), np.zeros(len(levels), np.float32)
@@ -134,7 +134,7 @@ def test_a_device_rollout_is_what_the_numpy_env_and_the_plain_net_play():
             addresses = {k: v.data_ptr() for k, v in rollout.weights.items() if k != "heads"}
             agent.train()
             loss = -agent.get_action_and_value({k: v.flatten(0, 1) for k, v in storage.obs.items()}, agent.initial_state(8),
-                                               storage.dones.flatten(), storage.actions.flatten())[1].mean()
+                                               storage.episode_starts.flatten(), storage.actions.flatten())[1].mean()
             loss.backward()
             optimizer.step()
             agent.eval()

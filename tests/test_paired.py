@@ -62,11 +62,11 @@ def test_regret_clips_a_negative_difference_to_zero():
 # ---------------------------------------------------------------------------------------------------
 # GAE on tiny hand-worked rollouts
 # ---------------------------------------------------------------------------------------------------
-def storage_of(rewards, values, dones):
+def storage_of(rewards, values, episode_starts):
     storage = paired.Rollout({"x": np.zeros((len(rewards[0]), 1), np.float32)}, gym.spaces.Discrete(2), len(rewards), len(rewards[0]), "cpu")
     storage.rewards[:] = torch.tensor(rewards)
     storage.values[:] = torch.tensor(values)
-    storage.dones[:] = torch.tensor(dones)
+    storage.episode_starts[:] = torch.tensor(episode_starts)
     return storage
 
 
@@ -77,7 +77,7 @@ def test_gae_hand_worked_with_a_reset_and_a_bootstrap():
     # Copy 1: one episode that ends at the last step (next_done = 1): nothing is bootstrapped.
     storage = storage_of(rewards=[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
                          values=[[0.5, 0.1], [0.6, 0.2], [0.2, 0.3]],
-                         dones=[[1.0, 1.0], [0.0, 0.0], [1.0, 0.0]])
+                         episode_starts=[[1.0, 1.0], [0.0, 0.0], [1.0, 0.0]])
     next_value, next_done = torch.tensor([0.4, 0.7]), torch.tensor([0.0, 1.0])
     advantages, returns = paired.gae(storage, next_value, next_done, gamma, lam)
     # copy 0: d2 = 0 + 0.9 * 0.4 - 0.2 = 0.16           A2 = 0.16
@@ -92,7 +92,7 @@ def test_gae_hand_worked_with_a_reset_and_a_bootstrap():
 
 
 def test_gae_one_step_is_the_td_error():
-    storage = storage_of(rewards=[[0.5]], values=[[0.25]], dones=[[1.0]])
+    storage = storage_of(rewards=[[0.5]], values=[[0.25]], episode_starts=[[1.0]])
     advantages, _ = paired.gae(storage, torch.tensor([2.0]), torch.tensor([0.0]), 0.5, 0.9)
     assert torch.allclose(advantages, torch.tensor([[0.5 + 0.5 * 2.0 - 0.25]]))
 
@@ -102,7 +102,7 @@ def teacher_gae(regret, values, gamma, lam, next_value=0.0):
     step, an episode start only at t = 0, next_done = 1 (the teacher's episode ends with the level)."""
     n = len(regret)
     storage = storage_of(rewards=[[0.0] * n, [0.0] * n, list(regret)], values=values,
-                         dones=[[1.0] * n, [0.0] * n, [0.0] * n])
+                         episode_starts=[[1.0] * n, [0.0] * n, [0.0] * n])
     return paired.gae(storage, torch.full((n,), next_value), torch.ones(n), gamma, lam)
 
 
@@ -224,7 +224,7 @@ def bc_setup(lr=1e-2):
 
 def kl_on(storage, target, agent, n):
     obs = {k: v.reshape((-1,) + v.shape[2:]) for k, v in storage.obs.items()}
-    done = storage.dones.reshape(-1)
+    done = storage.episode_starts.reshape(-1)
     state = agent.initial_state(n)
     with torch.no_grad():
         return paired_bc.cloning_kl(target, agent.dist(obs, state, done), obs, state, done).item()

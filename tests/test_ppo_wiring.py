@@ -99,7 +99,7 @@ def test_rollout_gae_hand_worked_with_an_episode_end_and_a_bootstrap(script):
     assert torch.allclose(advantages, expected, atol=1e-6)
     assert torch.allclose(returns, expected + VALUE, atol=1e-6)
     assert episode_returns == [[1.0], [2.0]]
-    scores = plr.positive_value_loss(advantages, storage.dones, storage.final_dones)
+    scores = plr.positive_value_loss(advantages, storage.episode_starts, storage.last_step_ended)
     assert torch.allclose(scores, torch.tensor([0.405, 0.917388]), atol=1e-6)
 
 
@@ -146,7 +146,7 @@ def one_ppo_epoch(script, ratio, advantages, value, update=1):
     returns = torch.tensor([1.0, 0.0, 0.5, 0.25])
     agent = ScriptedPolicy(old_logprob + torch.log(ratio), value)
     storage = SimpleNamespace(obs={"x": torch.zeros(2, 2, 1)}, actions=torch.zeros(2, 2, dtype=torch.long),
-                              logprobs=old_logprob.view(2, 2), values=returns.view(2, 2), dones=torch.zeros(2, 2),
+                              logprobs=old_logprob.view(2, 2), values=returns.view(2, 2), episode_starts=torch.zeros(2, 2),
                               rewards=torch.zeros(2, 2))
     args = script_args(script, num_envs=2, num_steps=2, update_epochs=1, num_minibatches=1, clip_coef=0.2,
                        value_loss="mse", ent_coef=0.0)
@@ -192,7 +192,7 @@ def teacher_storage(script):
     stale rewards of an earlier update (7.0) that must not leak into this one."""
     storage = script.Rollout({"x": np.zeros((2, 1), np.float32)}, gym.spaces.Discrete(2), 3, 2, "cpu")
     storage.values[:] = torch.tensor([[0.1, 0.3], [0.2, 0.0], [0.4, 0.5]])
-    storage.dones[:] = torch.tensor([[1.0, 1.0], [0.0, 0.0], [0.0, 0.0]])
+    storage.episode_starts[:] = torch.tensor([[1.0, 1.0], [0.0, 0.0], [0.0, 0.0]])
     storage.rewards.fill_(7.0)
     return storage
 

@@ -61,9 +61,9 @@ FLAG = '''    score_power: float = 1.0
 CHECK = '''    if args.score_power <= 0:
         fail("--score-power must be positive")
 '''
-SCORE = '''def squared_value_loss(advantages: torch.Tensor, dones: torch.Tensor, final_dones: torch.Tensor) -> torch.Tensor:
+SCORE = '''def squared_value_loss(advantages: torch.Tensor, episode_starts: torch.Tensor, last_step_ended: torch.Tensor) -> torch.Tensor:
     """The positive value loss squared: one score per env copy."""
-    return positive_value_loss(advantages, dones, final_dones) ** 2
+    return positive_value_loss(advantages, episode_starts, last_step_ended) ** 2
 
 
 '''
@@ -94,12 +94,12 @@ def test_a_copy_with_a_new_flag_and_level_score_checks_trains_and_resumes(tmp_pa
     with open(os.path.join(ROOT, "plr.py")) as f:
         source = f.read()
     source = inserted(source, "def level_scores(", SCORE, before=True)  # 1. the score, in the script
-    source = inserted(source, '"positive_value_loss": positive_value_loss(advantages, dones, final_dones).cpu().numpy(),',
-                      '\n            "squared_value_loss": squared_value_loss(advantages, dones, final_dones).cpu().numpy(),')  # 2. computed
+    source = inserted(source, '"positive_value_loss": positive_value_loss(advantages, episode_starts, last_step_ended).cpu().numpy(),',
+                      '\n            "squared_value_loss": squared_value_loss(advantages, episode_starts, last_step_ended).cpu().numpy(),')  # 2. computed
     source = replaced(source, 'Literal["positive_value_loss", "max_mc", "learnability"]',  # 3. offered by --score-function
                       'Literal["positive_value_loss", "max_mc", "learnability", "squared_value_loss"]')
     source = inserted(source, "    min_fill_ratio: float = 0.5\n", FLAG, before=True)  # the flag: a field of Args,
-    source = inserted(source, "    return args\n\n\n# -----", CHECK, before=True)  # checked at the end of resolve_args,
+    source = inserted(source, "    return args\n\n\nif __name__", CHECK, before=True)  # checked at the end of resolve_args,
     source = replaced(source, "scores = scores_of[args.score_function]\n", "scores = scores_of[args.score_function] ** args.score_power\n")
     (tmp_path / "my_plr.py").write_text(source)
 

@@ -31,8 +31,8 @@ LEVELS = MazeEnv("maze", 1, 0).Levels  # the level type a maze buffer holds
 # ---------------------------------------------------------------------------------------------------
 def test_positive_value_loss_averages_completed_episode_means():
     advantages = torch.tensor([[0.5, -1.0], [-0.2, 2.0], [0.3, 1.0], [1.0, 0.0]])
-    dones = torch.tensor([[1.0, 1.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])  # copy 0: episodes {0,1}, {2,3}
-    scores = positive_value_loss(advantages, dones, torch.tensor([1.0, 1.0]))  # both end at the last step
+    episode_starts = torch.tensor([[1.0, 1.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])  # copy 0: episodes {0,1}, {2,3}
+    scores = positive_value_loss(advantages, episode_starts, torch.tensor([1.0, 1.0]))  # both end at the last step
     # copy 0: mean(0.5, 0) = 0.25 and mean(0.3, 1.0) = 0.65 -> 0.45; copy 1: mean(0, 2, 1, 0) = 0.75
     assert torch.allclose(scores, torch.tensor([0.45, 0.75]))
 
@@ -42,11 +42,11 @@ def test_positive_value_loss_skips_the_episode_cut_off_by_the_rollout_end():
     then a 6-step piece cut off by the rollout's end with advantages 0.5: the score is 0.01 (the old
     rule averaged the two episodes' means: 0.255)."""
     advantages = torch.cat([torch.full((250, 1), 0.01), torch.full((6, 1), 0.5)])
-    dones = torch.zeros(256, 1)
-    dones[250] = 1.0
-    assert torch.allclose(positive_value_loss(advantages, dones, torch.zeros(1)), torch.tensor([0.01]))
+    episode_starts = torch.zeros(256, 1)
+    episode_starts[250] = 1.0
+    assert torch.allclose(positive_value_loss(advantages, episode_starts, torch.zeros(1)), torch.tensor([0.01]))
     # Had the piece ended at the last step, it would count: (0.01 + 0.5) / 2.
-    assert torch.allclose(positive_value_loss(advantages, dones, torch.ones(1)), torch.tensor([0.255]))
+    assert torch.allclose(positive_value_loss(advantages, episode_starts, torch.ones(1)), torch.tensor([0.255]))
 
 
 def test_positive_value_loss_of_a_copy_without_a_completed_episode_is_its_unfinished_one():
@@ -113,7 +113,7 @@ def scores_of_plr_rollout(highest_of=highest_returns):
     advantages, _, returns_per_level = plr.collect_rollout(StepValueAgent(), env, None, storage, args, "cpu")
     assert returns_per_level == [[1.0, 0.0], [0.5]]  # completed episodes only
     highest = highest_of(returns_per_level)
-    return level_scores(advantages, storage.values, storage.dones, storage.final_dones, returns_per_level, highest,
+    return level_scores(advantages, storage.values, storage.episode_starts, storage.last_step_ended, returns_per_level, highest,
                         env.solved_threshold, None)
 
 
@@ -134,9 +134,9 @@ def test_paired_evo_scores_its_protagonists_rollout_alike():
     args = paired_evo.paper_args(num_envs=2, num_steps=6, gamma=1.0, gae_lambda=1.0)
     storage = paired_evo.Rollout(env.reset(None), env.single_action_space, args.num_steps, args.num_envs, "cpu")
     advantages, _, returns_per_level = paired_evo.student_rollout(StepValueAgent(), env, None, storage, args, "cpu")
-    final_dones = ended_at_rollout_end(storage.dones, returns_per_level)
-    assert final_dones.tolist() == [0.0, 1.0]
-    scores = level_scores(advantages, storage.values, storage.dones, final_dones, returns_per_level,
+    last_step_ended = ended_at_rollout_end(storage.episode_starts, returns_per_level)
+    assert last_step_ended.tolist() == [0.0, 1.0]
+    scores = level_scores(advantages, storage.values, storage.episode_starts, last_step_ended, returns_per_level,
                           highest_returns(returns_per_level), env.solved_threshold, None)
     for name, expected in EXPECTED.items():
         assert np.allclose(scores[name], expected, atol=1e-6), (name, scores[name])
@@ -193,10 +193,10 @@ def test_max_mc_compares_return_and_value_in_the_values_units():
     normalizer = ReturnNormalizer(1, 0.99)
     normalizer.var = 4.0 - normalizer.epsilon
     values = torch.tensor([[0.1], [0.3]])
-    dones, final_dones = torch.tensor([[1.0], [0.0]]), torch.ones(1)
-    scores = level_scores(torch.zeros(2, 1), values, dones, final_dones, [[1.0]], np.array([1.0]), 0.0, normalizer)
+    episode_starts, last_step_ended = torch.tensor([[1.0], [0.0]]), torch.ones(1)
+    scores = level_scores(torch.zeros(2, 1), values, episode_starts, last_step_ended, [[1.0]], np.array([1.0]), 0.0, normalizer)
     assert np.allclose(scores["max_mc"], [0.3])
-    assert np.allclose(max_mc(values, dones, final_dones, torch.tensor([1.0])), [0.8])
+    assert np.allclose(max_mc(values, episode_starts, last_step_ended, torch.tensor([1.0])), [0.8])
 
 
 # ---------------------------------------------------------------------------------------------------

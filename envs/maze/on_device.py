@@ -118,10 +118,10 @@ def rollout_step(weights: dict, layout: dict, max_steps: int, obs: dict, carry: 
     return action, logprob, value, reward, observe(layout, pos, direction), carry, h, c, terminated | truncated
 
 
-def gae(rewards, values, starts, final_ended, next_value, gamma: float, gae_lambda: float):
+def gae(rewards, values, starts, last_step_ended, next_value, gamma: float, gae_lambda: float):
     """Generalized advantage estimation over the rollout ([T, N]; starts: 1 where an episode starts at
     step t), as the scripts compute it on the host. -> advantages [T, N]."""
-    next_nonterminal = 1.0 - torch.cat([starts[1:], final_ended.unsqueeze(0).to(starts.dtype)])
+    next_nonterminal = 1.0 - torch.cat([starts[1:], last_step_ended.unsqueeze(0).to(starts.dtype)])
     following = torch.cat([values[1:], next_value.unsqueeze(0)])
     delta = rewards + gamma * following * next_nonterminal - values
     advantages = torch.empty_like(rewards)
@@ -132,9 +132,9 @@ def gae(rewards, values, starts, final_ended, next_value, gamma: float, gae_lamb
     return advantages
 
 
-def episode_returns(rewards: np.ndarray, starts: np.ndarray, final_ended: np.ndarray) -> list[list[float]]:
+def episode_returns(rewards: np.ndarray, starts: np.ndarray, last_step_ended: np.ndarray) -> list[list[float]]:
     """Each copy's completed episodes' returns, from a rollout's rewards and episode starts [T, N]."""
-    ends = np.concatenate([starts[1:], final_ended[None]]).astype(bool)
+    ends = np.concatenate([starts[1:], last_step_ended[None]]).astype(bool)
     returns = [[] for _ in range(rewards.shape[1])]
     running = np.zeros(rewards.shape[1])
     for t in range(len(rewards)):
@@ -147,7 +147,7 @@ def episode_returns(rewards: np.ndarray, starts: np.ndarray, final_ended: np.nda
 
 class DeviceRollout:
     """Plays the student's maze rollouts on its device into a script's storage (obs, actions, logprobs,
-    values, rewards, dones as 1 where an episode starts, and final_dones where it has them), as the script's
+    values, rewards, episode_starts, and last_step_ended where it has one), as the script's
     own rollout does.
     Called with the levels, it returns advantages, returns and each copy's completed episodes' returns.
     `graph`: capture the rollout as a CUDA graph (on a GPU)."""
@@ -178,7 +178,7 @@ class DeviceRollout:
             else:
                 self.play()
         storage = self.storage
-        returns_per_copy = episode_returns(storage.rewards.cpu().numpy(), storage.dones.cpu().numpy(), self.final_ended.cpu().numpy())
+        returns_per_copy = episode_returns(storage.rewards.cpu().numpy(), storage.episode_starts.cpu().numpy(), self.last_step_ended.cpu().numpy())
         advantages = self.advantages.clone()  # the graph's own tensor is rewritten by the next rollout
         return advantages, advantages + storage.values, returns_per_copy
 
@@ -212,7 +212,7 @@ class DeviceRollout:
         for step in range(self.num_steps):
             storage.obs["image"][step].copy_(obs["image"])
             storage.obs["direction"][step].copy_(obs["direction"])
-            storage.dones[step].copy_(ended)
+            storage.episode_starts[step].copy_(ended)
             uniforms = torch.rand(self.num_envs, device=self.device)
             action, logprob, value, reward, obs, carry, h, c, ended = rollout_step(self.weights, layout, TRAIN_MAX_STEPS, obs, carry,
                                                                                    h, c, ended, uniforms)
@@ -220,15 +220,15 @@ class DeviceRollout:
             storage.logprobs[step].copy_(logprob)
             storage.values[step].copy_(value)
             storage.rewards[step].copy_(reward)
-        self.record_final_ends(ended)
+        self.record_last_step_ended(ended)
         next_value = act(self.weights, obs, h, c, ended, torch.zeros(self.num_envs, device=self.device))[2]
-        self.advantages = gae(storage.rewards, storage.values, storage.dones, self.final_ended, next_value, self.gamma, self.gae_lambda)
+        self.advantages = gae(storage.rewards, storage.values, storage.episode_starts, self.last_step_ended, next_value, self.gamma, self.gae_lambda)
 
-    def record_final_ends(self, ended: torch.Tensor) -> None:
+    def record_last_step_ended(self, ended: torch.Tensor) -> None:
         """Where the rollout's last step ended an episode: kept here, and in the storage where it has a place."""
-        self.final_ended = ended
-        if hasattr(self.storage, "final_dones"):
-            self.storage.final_dones.copy_(ended)
+        self.last_step_ended = ended
+        if hasattr(self.storage, "last_step_ended"):
+            self.storage.last_step_ended.copy_(ended)
 
     def replay_graph(self) -> None:
         """Replay the captured rollout; capture it first (after warm-up runs on a side stream, as CUDA
@@ -258,7 +258,7 @@ class DeviceRollout:
         for step in range(self.num_steps):
             for key, value in obs.items():
                 storage.obs[key][step].copy_(value)
-            storage.dones[step].copy_(ended)
+            storage.episode_starts[step].copy_(ended)
             action, logprob, _, value, state = agent.get_action_and_value(obs, state, ended.float())
             storage.actions[step].copy_(action)
             storage.logprobs[step].copy_(logprob)
@@ -266,6 +266,6 @@ class DeviceRollout:
             obs, reward, terminated, truncated, _ = self.torch_env.step(action)
             ended = terminated | truncated
             storage.rewards[step].copy_(reward)
-        self.record_final_ends(ended)
+        self.record_last_step_ended(ended)
         next_value = agent.get_value(obs, state, ended.float())
-        self.advantages = gae(storage.rewards, storage.values, storage.dones, self.final_ended, next_value, self.gamma, self.gae_lambda)
+        self.advantages = gae(storage.rewards, storage.values, storage.episode_starts, self.last_step_ended, next_value, self.gamma, self.gae_lambda)
