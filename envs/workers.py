@@ -25,6 +25,7 @@ it and its copies (`EnvWorkerDied`); an exception raised in a worker is raised h
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 import multiprocessing
 import multiprocessing.connection
@@ -164,10 +165,8 @@ def stop_workers(workers: list[Worker]) -> None:
     """Ask the running workers to finish and wait for them (ending any that do not within 2 s)."""
     for worker in workers:
         if worker.conn is not None:
-            try:
+            with contextlib.suppress(OSError):  # (it has ended already)
                 worker.conn.send(("close",))
-            except OSError:  # it has ended already
-                pass
     for worker in workers:
         if worker.process is not None:
             worker.process.join(timeout=2)
@@ -298,10 +297,8 @@ class WorkerSteppedEnv:
         """The worker's answer, waited for while the worker lives."""
         multiprocessing.connection.wait([worker.conn, worker.process.sentinel])
         if worker.conn.poll():  # an answer, or the end of the pipe
-            try:
+            with contextlib.suppress(EOFError):  # (the end of the pipe: the worker ended)
                 return worker.conn.recv()
-            except EOFError:
-                pass
         self._worker_ended(worker, command)
 
     def _worker_ended(self, worker: Worker, command: str) -> None:
