@@ -86,8 +86,9 @@ class Campaign:
         entry = self.long.get(name, {}).get("milestones", {}).get(str(budget))
         if entry is None:
             return None
-        if seed is not None:
-            return self.seed_mean(os.path.join(RESULTS, self.folder, "long", name, str(seed), f"eval_{budget}.json")), None, 1
+        if seed is not None:  # None where that seed has not reached the milestone
+            mean = self.seed_mean(os.path.join(RESULTS, self.folder, "long", name, str(seed), f"eval_{budget}.json"))
+            return None if mean is None else (mean, None, 1)
         return entry[self.key], entry["se"], len(entry["seeds"])
 
     def pairs(self) -> list[tuple[float, float]]:
