@@ -38,7 +38,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, episode_means, highest_returns, other_scores,
                          score_true_regret_correlations)
@@ -60,6 +60,8 @@ class Args:
     """use a GPU when one is available"""
     device_rollouts: bool = True
     """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
+    env_workers: int | None = None
+    """CarRacing, walker: processes stepping the env copies, results bit for bit the same (0: this process; default: on a GPU one per CPU core but one, else 0)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -146,7 +148,7 @@ class Args:
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    """episodes per held-out level, in validation and in the final evaluation; 0: no evaluation at all"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random
@@ -373,32 +375,29 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     return advantages, returns, episode_returns
 
 
-def cloning_kl(target, dist, obs: dict, initial_state, episode_starts) -> torch.Tensor:
+def cloning_kl(target, dist, obs: dict, initial_state, episode_starts, **padding) -> torch.Tensor:
     """Eq. 1's term: the mean over a batch of KL(pi_target(.|s) || pi(.|s)) on the cloning agent's own
     observations, the target evaluated without gradient and, if recurrent, from the same zero state
-    (`initial_state`, the cloning agent's: both students are one class) reset at the same episode starts."""
+    (`initial_state`, the cloning agent's: both students are one class) reset at the same episode starts
+    (`padding`: the LSTM's, as ppo_update reads it)."""
     with torch.no_grad():
-        target_dist = target.dist(obs, initial_state, episode_starts)
+        target_dist = target.dist(obs, initial_state, episode_starts, **padding)
     return torch.distributions.kl_divergence(target_dist, dist).mean()
 
 
-def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
-    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
-    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
-    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, update_epochs: int, device):
+    """Every epoch's minibatches, [epoch][minibatch], as rows of the flattened time-major batch (row t * n + i is step
+    t of copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again time-major. A
+    feed-forward net takes any steps. Each epoch's order is numpy's next permutation, all sent in one copy (each waits for a
+    GPU). A single minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
     if num_minibatches == 1:
-        yield slice(None)
-        return
-    if recurrent:
-        order = torch.as_tensor(np.random.permutation(n), device=device)
-        copies_per_batch = n // num_minibatches
-        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
-        for start in range(0, n, copies_per_batch):
-            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
-    else:
-        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
-        yield from order.chunk(num_minibatches)
+        return [[slice(None)]] * update_epochs
+    size = n if recurrent else num_steps * n
+    orders = torch.as_tensor(np.stack([np.random.permutation(size) for _ in range(update_epochs)]), device=device)
+    if not recurrent:
+        return [order.chunk(num_minibatches) for order in orders]
+    steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
+    return [[(steps + copies).reshape(-1) for copies in order.chunk(num_minibatches)] for order in orders]
 
 
 def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
@@ -427,46 +426,53 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
 PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
 
 
+def ppo_loss(agent, storage: Rollout, advantages, returns, rows, state, padding: dict, ent_coef: float, args: Args,
+             clone_target=None, bc_coef: float = 0.0):
+    """One minibatch's PPO loss and its statistics (PPO_STATS, then the cloning KL: a tensor), with no host sync, so
+    torch.compile takes it whole (tests/test_update_compiles.py); with a clone_target, the loss adds bc_coef * KL."""
+    flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
+    obs, episode_starts = {k: flat(v) for k, v in storage.obs.items()}, flat(storage.episode_starts)
+    # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+    # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+    dist, value = agent.dist_and_value(obs, state, episode_starts, **padding)
+    logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
+    ratio = (logprob - flat(storage.logprobs)).exp()
+    adv = flat(advantages)
+    if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
+    value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
+    kl = torch.zeros_like(value_loss) if clone_target is None else cloning_kl(clone_target, dist, obs, state, episode_starts, **padding)
+    loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss + bc_coef * kl
+    with torch.no_grad():
+        return loss, torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                  ((ratio - 1).abs() > args.clip_coef).float().mean(), kl])
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, args: Args, update: int, device,
                clone_target=None, bc_coef: float = 0.0) -> dict:
     """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies); with a clone_target,
-    every minibatch loss adds bc_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode)."""
+    every minibatch loss adds bc_coef * KL(pi_clone_target || pi_agent) (the PAIRED+BC pseudocode). Nothing in its
+    epochs waits for a GPU: the minibatch orders and an LSTM's padding (envs/nets.py) are read before them, the
+    statistics after."""
     num_steps, n = storage.rewards.shape
     state = agent.initial_state(n // args.num_minibatches, device)  # every rollout starts from a fresh state
-    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
-    kl_sum = torch.zeros((), device=device)
+    padding = {"most_resets": int(storage.episode_starts[1:].sum(0).max())} if agent.is_recurrent else {}
+    sums = torch.zeros(len(PPO_STATS) + 1, device=device)  # and the cloning KL's, summed on the device
     finite = torch.ones((), dtype=torch.bool, device=device)
-    for _ in range(args.update_epochs):
-        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, device):
-            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
-            obs = {k: flat(v) for k, v in storage.obs.items()}
-            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
-            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
-            dist, value = agent.dist_and_value(obs, state, flat(storage.episode_starts))
-            logprob, entropy = dist.log_prob(flat(storage.actions)), dist.entropy()
-            ratio = (logprob - flat(storage.logprobs)).exp()
-            adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
-            loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
-            if clone_target is not None:
-                kl = cloning_kl(clone_target, dist, obs, initial_state=state, episode_starts=flat(storage.episode_starts))
-                loss = loss + bc_coef * kl
-                kl_sum += kl.detach()
+    for epoch in minibatch_rows(agent.is_recurrent, num_steps, n, args.num_minibatches, args.update_epochs, device):
+        for rows in epoch:
+            loss, stats = ppo_loss(agent, storage, advantages, returns, rows, state, padding, ent_coef, args, clone_target, bc_coef)
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
             optimizer.step()
             finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
-            with torch.no_grad():
-                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
-                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
-    if not finite:  # the run stops before its next checkpoint
+            sums += stats
+    *means, kl, all_finite = torch.cat([sums / (args.update_epochs * args.num_minibatches), finite.view(1)]).tolist()  # the one read
+    if not all_finite:  # the run stops before its next checkpoint
         raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
-    count = args.update_epochs * args.num_minibatches
-    return {**dict(zip(PPO_STATS, (sums / count).tolist())), "kl": (kl_sum / count).item()}
+    return {**dict(zip(PPO_STATS, means)), "kl": kl}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -587,9 +593,11 @@ def resolve_args(args: Args) -> Args:
         fail("--num-edits must be at least 1, and --edit-levels easy needs an even --num-envs")
     if args.bc_coef < 0 or args.bc_interval < 1:
         fail("--bc-coef must be >= 0 and --bc-interval at least 1")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+        fail("step counts, epochs, intervals and milestones must be positive")
+    if args.eval_episodes < 0 or (args.eval_episodes == 0 and args.milestones):
+        fail("--eval-episodes must be >= 0 (0: no evaluation), and positive with --milestones (each one an evaluation)")
     return args
 
 
@@ -600,7 +608,7 @@ if __name__ == "__main__":
     score_levels = flexible_regret if args.flexible else regret
     mode = ("FlexPAIRED+Evo" if args.flexible else "PAIRED+Evo") + (("+BiBC" if args.bidirectional else "+UniBC") if args.bc_coef > 0 else "")
 
-    env = envs.make(args.env, args.num_envs, args.seed)
+    env = envs.make(args.env, args.num_envs, args.seed, env_workers(args.env_workers, device))
     level_rng = np.random.default_rng(args.seed + 1)  # level generation, edits and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)

@@ -29,7 +29,8 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class, true_regret_stats
+from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+                        teacher_rollout_on_device, true_regret_stats)
 from envs.training_run import Timers, TrainingRun
 
 
@@ -47,7 +48,10 @@ class Args:
     cuda: bool = True
     """use a GPU when one is available"""
     device_rollouts: bool = True
-    """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
+    """on a GPU, play the maze's rollouts and the teacher's design episodes whole on the device, env and teacher MDP included,
+    each one CUDA graph (off: the numpy env and MDP on the CPU)"""
+    env_workers: int | None = None
+    """CarRacing, walker: processes stepping the env copies, results bit for bit the same (0: this process; default: on a GPU one per CPU core but one, else 0)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -110,7 +114,7 @@ class Args:
     eval_interval: int = 50
     """updates between validation runs of the protagonist on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    """episodes per held-out level, in validation and in the final evaluation; 0: no evaluation at all"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random
@@ -191,23 +195,19 @@ def student_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
     return advantages, returns, episode_returns
 
 
-def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, device):
-    """One epoch's minibatches as rows of the flattened time-major batch (row t * n + i is step t of
-    copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
-    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+def minibatch_rows(recurrent: bool, num_steps: int, n: int, num_minibatches: int, update_epochs: int, device):
+    """Every epoch's minibatches, [epoch][minibatch], as rows of the flattened time-major batch (row t * n + i is step
+    t of copy i). An LSTM needs whole rollouts: each minibatch holds all steps of some copies, again time-major. A
+    feed-forward net takes any steps. Each epoch's order is numpy's next permutation, all sent in one copy (each waits for a
+    GPU). A single minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
     if num_minibatches == 1:
-        yield slice(None)
-        return
-    if recurrent:
-        order = torch.as_tensor(np.random.permutation(n), device=device)
-        copies_per_batch = n // num_minibatches
-        steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
-        for start in range(0, n, copies_per_batch):
-            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
-    else:
-        order = torch.as_tensor(np.random.permutation(num_steps * n), device=device)
-        yield from order.chunk(num_minibatches)
+        return [[slice(None)]] * update_epochs
+    size = n if recurrent else num_steps * n
+    orders = torch.as_tensor(np.stack([np.random.permutation(size) for _ in range(update_epochs)]), device=device)
+    if not recurrent:
+        return [order.chunk(num_minibatches) for order in orders]
+    steps = torch.arange(num_steps, device=device).unsqueeze(1) * n
+    return [[(steps + copies).reshape(-1) for copies in order.chunk(num_minibatches)] for order in orders]
 
 
 def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
@@ -236,39 +236,49 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
 PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
 
 
+def ppo_loss(agent, storage: Rollout, advantages, returns, rows, state, padding: dict, ent_coef: float, args: Args):
+    """One minibatch's PPO loss and its statistics (PPO_STATS, a tensor): the update's pass through the net, with no host
+    sync, so torch.compile takes it whole (tests/test_update_compiles.py)."""
+    flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
+    obs = {k: flat(v) for k, v in storage.obs.items()}
+    # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+    # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+    _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions), **padding)
+    ratio = (logprob - flat(storage.logprobs)).exp()
+    adv = flat(advantages)
+    if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
+    value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
+    loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
+    with torch.no_grad():
+        return loss, torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                  ((ratio - 1).abs() > args.clip_coef).float().mean()])
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, ent_coef: float, update_epochs: int, num_minibatches: int,
                args: Args, update: int, device) -> dict:
-    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies). Nothing in its epochs
+    waits for a GPU: the minibatch orders and an LSTM's padding (the most episode starts of any copy, envs/nets.py) are
+    read before them, the statistics after."""
     num_steps, n = storage.rewards.shape
     state = agent.initial_state(n // num_minibatches, device)  # every rollout starts from a fresh state
-    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    padding = {"most_resets": int(storage.episode_starts[1:].sum(0).max())} if agent.is_recurrent else {}
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device
     finite = torch.ones((), dtype=torch.bool, device=device)
-    for _ in range(update_epochs):
-        for rows in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, device):
-            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
-            obs = {k: flat(v) for k, v in storage.obs.items()}
-            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
-            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
-            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions))
-            ratio = (logprob - flat(storage.logprobs)).exp()
-            adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step (a tiny teacher batch) has no spread to normalize
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
-            loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
+    for epoch in minibatch_rows(agent.is_recurrent, num_steps, n, num_minibatches, update_epochs, device):
+        for rows in epoch:
+            loss, stats = ppo_loss(agent, storage, advantages, returns, rows, state, padding, ent_coef, args)
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
             optimizer.step()
             finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
-            with torch.no_grad():
-                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
-                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
-    if not finite:  # the run stops before its next checkpoint
+            sums += stats
+    *means, all_finite = torch.cat([sums / (update_epochs * num_minibatches), finite.view(1)]).tolist()  # the one read
+    if not all_finite:  # the run stops before its next checkpoint
         raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
-    count = update_epochs * num_minibatches
-    return dict(zip(PPO_STATS, (sums / count).tolist()))
+    return dict(zip(PPO_STATS, means))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -402,9 +412,11 @@ def resolve_args(args: Args) -> Args:
         fail("entropy coefficients must be >= 0")
     if args.teacher_conv_channels <= 0:
         fail("--teacher-conv-channels must be positive")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+        fail("step counts, epochs, intervals and milestones must be positive")
+    if args.eval_episodes < 0 or (args.eval_episodes == 0 and args.milestones):
+        fail("--eval-episodes must be >= 0 (0: no evaluation), and positive with --milestones (each one an evaluation)")
     return args
 
 
@@ -414,7 +426,7 @@ if __name__ == "__main__":
     batch_size = args.num_envs * args.num_steps
     num_updates = math.ceil(args.total_timesteps / batch_size)
 
-    env = envs.make(args.env, args.num_envs, args.seed)
+    env = envs.make(args.env, args.num_envs, args.seed, env_workers(args.env_workers, device))
     mdp = env.teacher()
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)
@@ -437,6 +449,11 @@ if __name__ == "__main__":
     play_rollout = {name: rollouts_on_device(env, agents[name], student_storage, args, device, normalizers.get(name))
                     or partial(student_rollout, agents[name], env, storage=student_storage, args=args, device=device, normalizer=normalizers.get(name))
                     for name in ("protagonist", "antagonist")}
+    # The teacher's design episode: `teacher_rollout` above, or on a GPU the maze's player of the whole episode on the device, one
+    # CUDA graph (envs/maze/teacher_on_device.py; teacher_rollout_on_device gives None elsewhere). Both design the same levels with
+    # the same actions from the same random streams, as tests/test_teacher_on_device.py checks.
+    design_levels = (teacher_rollout_on_device(mdp, teacher, teacher_storage, args, device)
+                     or partial(teacher_rollout, teacher, mdp, teacher_storage, args, device))
     state = {**agents, **{name + "_optimizer": o for name, o in optimizers.items()}, "env_rng": env.rng,
              **{name + "_normalizer": n for name, n in normalizers.items()}}  # what a checkpoint holds
     run = TrainingRun(args, __file__, env, protagonist, metric_names(env), state, device)
@@ -450,7 +467,7 @@ if __name__ == "__main__":
         # Algorithm 1, line 3: the teacher generates the levels.
         # Both students play each level from the same start (the maze draws its start direction here).
         with timers("teacher_rollout"):
-            levels = env.draw_starts(teacher_rollout(teacher, mdp, teacher_storage, args, device))
+            levels = env.draw_starts(design_levels())
 
         # Lines 4-7: each student collects a rollout on every level and trains by PPO.
         stats, returns_of = {}, {}

@@ -39,7 +39,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import SCORE_FUNCTIONS, highest_returns, other_scores, score_true_regret_correlations
 from envs.training_run import TrainingRun
@@ -60,6 +60,8 @@ class Args:
     """use a GPU when one is available"""
     device_rollouts: bool = True
     """on a GPU, play the maze's rollouts whole on the device, its env included, each one CUDA graph (off: the numpy env on the CPU)"""
+    env_workers: int | None = None
+    """CarRacing, walker: processes stepping the env copies, results bit for bit the same (0: this process; default: on a GPU one per CPU core but one, else 0)"""
     torch_deterministic: bool = True
     """cuDNN chooses deterministic algorithms on a GPU, so a seed gives the same result there too (CleanRL's flag)"""
     track: bool = False
@@ -133,7 +135,7 @@ class Args:
     eval_interval: int = 100
     """updates between validation runs on the paper's validation levels"""
     eval_episodes: int = 100
-    """episodes per held-out level, in validation and in the final evaluation"""
+    """episodes per held-out level, in validation and in the final evaluation; 0: no evaluation at all"""
     milestones: tuple[int, ...] = ()
     """env steps at which the student is also evaluated on the held-out levels as at the end, into
     eval_<steps>.json: the evaluation a run given that many steps ends with (it draws from its own random
@@ -366,22 +368,18 @@ def collect_rollout(agent, env, levels, storage: Rollout, args: Args, device, no
 
 
 def minibatch_rows(recurrent: bool, args: Args, device):
-    """One epoch's minibatches as rows of the flattened time-major batch (row t * num_envs + n is step t
-    of copy n). An LSTM needs whole rollouts: each minibatch holds all steps of some env copies, again
-    time-major. A feed-forward net takes any steps: random minibatches of single steps. A single
-    minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
+    """Every epoch's minibatches, [epoch][minibatch], as rows of the flattened time-major batch (row t * num_envs + n is step
+    t of copy n). An LSTM needs whole rollouts: each minibatch holds all steps of some env copies, again time-major. A
+    feed-forward net takes any steps. Each epoch's order is numpy's next permutation, all sent in one copy (each waits for a
+    GPU). A single minibatch is the whole batch in storage order (order does not matter within one): a view, no copy."""
     if args.num_minibatches == 1:
-        yield slice(None)
-        return
-    if recurrent:
-        order = torch.as_tensor(np.random.permutation(args.num_envs), device=device)
-        copies_per_batch = args.num_envs // args.num_minibatches
-        steps = torch.arange(args.num_steps, device=device).unsqueeze(1) * args.num_envs
-        for start in range(0, args.num_envs, copies_per_batch):
-            yield (steps + order[start : start + copies_per_batch]).reshape(-1)
-    else:
-        order = torch.as_tensor(np.random.permutation(args.num_envs * args.num_steps), device=device)
-        yield from order.chunk(args.num_minibatches)
+        return [[slice(None)]] * args.update_epochs
+    size = args.num_envs if recurrent else args.num_envs * args.num_steps
+    orders = torch.as_tensor(np.stack([np.random.permutation(size) for _ in range(args.update_epochs)]), device=device)
+    if not recurrent:
+        return [order.chunk(args.num_minibatches) for order in orders]
+    steps = torch.arange(args.num_steps, device=device).unsqueeze(1) * args.num_envs
+    return [[(steps + copies).reshape(-1) for copies in order.chunk(args.num_minibatches)] for order in orders]
 
 
 def batch_rows(x: torch.Tensor, rows) -> torch.Tensor:
@@ -410,37 +408,47 @@ def value_loss_fn(value, old_value, ret, args: Args) -> torch.Tensor:
 PPO_STATS = ("policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac")
 
 
+def ppo_loss(agent, storage: Rollout, advantages, returns, rows, state, padding: dict, ent_coef: float, args: Args):
+    """One minibatch's PPO loss and its statistics (PPO_STATS, a tensor): the update's pass through the net, with no host
+    sync, so torch.compile takes it whole (tests/test_update_compiles.py)."""
+    flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
+    obs = {k: flat(v) for k, v in storage.obs.items()}
+    # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
+    # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
+    _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions), **padding)
+    ratio = (logprob - flat(storage.logprobs)).exp()
+    adv = flat(advantages)
+    if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
+    value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
+    loss = policy_loss - ent_coef * entropy.mean() + args.vf_coef * value_loss
+    with torch.no_grad():
+        return loss, torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
+                                  ((ratio - 1).abs() > args.clip_coef).float().mean()])
+
+
 def ppo_update(agent, optimizer, storage: Rollout, advantages, returns, args: Args, update: int, device) -> dict:
-    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies)."""
+    """PPO's clipped update (an LSTM trains on whole sequences, minibatches split over env copies). Nothing in its epochs
+    waits for a GPU: the minibatch orders and an LSTM's padding (the most episode starts of any copy, envs/nets.py) are
+    read before them, the statistics after."""
     state = agent.initial_state(args.num_envs // args.num_minibatches, device)  # every rollout starts on fresh levels
-    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device, read once per update (no wait per minibatch)
+    padding = {"most_resets": int(storage.episode_starts[1:].sum(0).max())} if agent.is_recurrent else {}
+    sums = torch.zeros(len(PPO_STATS), device=device)  # summed on the device
     finite = torch.ones((), dtype=torch.bool, device=device)
-    for _ in range(args.update_epochs):
-        for rows in minibatch_rows(agent.is_recurrent, args, device):
-            flat = lambda x: batch_rows(x, rows)  # noqa: E731 (time-major [T * n] rows)
-            obs = {k: flat(v) for k, v in storage.obs.items()}
-            # An LSTM runs each copy's rollout as one sequence from a zero state, and its state is zeroed again
-            # at every episode start (envs/nets.py's ResettableLSTM); a feed-forward net ignores both.
-            _, logprob, entropy, value, _ = agent.get_action_and_value(obs, state, flat(storage.episode_starts), flat(storage.actions))
-            ratio = (logprob - flat(storage.logprobs)).exp()
-            adv = flat(advantages)
-            if adv.numel() > 1:  # a minibatch of one step has no spread to normalize
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-            policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - args.clip_coef, 1 + args.clip_coef)).mean()
-            value_loss = value_loss_fn(value, flat(storage.values), flat(returns), args)
-            loss = policy_loss - args.ent_coef * entropy.mean() + args.vf_coef * value_loss
+    for epoch in minibatch_rows(agent.is_recurrent, args, device):
+        for rows in epoch:
+            loss, stats = ppo_loss(agent, storage, advantages, returns, rows, state, padding, args.ent_coef, args)
             optimizer.zero_grad()
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
             optimizer.step()
             finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
-            with torch.no_grad():
-                sums += torch.stack([policy_loss, value_loss, entropy.mean(), ((ratio - 1) - ratio.log()).mean(),
-                                     ((ratio - 1).abs() > args.clip_coef).float().mean()])
-    if not finite:  # the run stops before its next checkpoint
+            sums += stats
+    *means, all_finite = torch.cat([sums / (args.update_epochs * args.num_minibatches), finite.view(1)]).tolist()  # the one read
+    if not all_finite:  # the run stops before its next checkpoint
         raise FloatingPointError(f"NaN or inf in the PPO loss or gradients at update {update}")
-    count = args.update_epochs * args.num_minibatches
-    return dict(zip(PPO_STATS, (sums / count).tolist()))
+    return dict(zip(PPO_STATS, means))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -539,9 +547,11 @@ def resolve_args(args: Args) -> Args:
         fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
     if args.temperature <= 0 or args.level_buffer_size < args.num_envs:
         fail("--temperature must be > 0 and --level-buffer-size at least --num-envs")
-    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.eval_episodes, args.log_interval,
+    if min(args.total_timesteps, args.num_steps, args.update_epochs, args.log_interval,
            args.eval_interval, args.checkpoint_interval, args.levels_interval, *args.milestones) <= 0:
-        fail("step counts, epochs, episodes, intervals and milestones must be positive")
+        fail("step counts, epochs, intervals and milestones must be positive")
+    if args.eval_episodes < 0 or (args.eval_episodes == 0 and args.milestones):
+        fail("--eval-episodes must be >= 0 (0: no evaluation), and positive with --milestones (each one an evaluation)")
     return args
 
 
@@ -554,7 +564,7 @@ if __name__ == "__main__":
     train_on_new_levels = domain_randomization or not args.robust
     mode = "DR" if domain_randomization else ("Robust PLR" if args.robust else "PLR")
 
-    env = envs.make(args.env, args.num_envs, args.seed)
+    env = envs.make(args.env, args.num_envs, args.seed, env_workers(args.env_workers, device))
     level_rng = np.random.default_rng(args.seed + 1)  # level generation and replay sampling
     np.random.seed(args.seed)  # minibatch order
     torch.manual_seed(args.seed)

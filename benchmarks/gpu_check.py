@@ -51,13 +51,16 @@ import ast
 import concurrent.futures
 import contextlib
 import functools
+import importlib
 import json
 import os
 import platform
+import signal
 import subprocess
 import sys
 import tempfile
 import time
+import traceback
 import types
 import xml.etree.ElementTree as ElementTree
 
@@ -167,6 +170,14 @@ def time_script(report_path: str, updates: str, path: str, *argv: str) -> None:
             player = choose_player(*given, **options)
             return None if player is None else timed(rollout_function, player)
         namespace["rollouts_on_device"] = timed_player
+        # PAIRED's scripts design their levels by the device player where teacher_rollout_on_device gives one: timed as teacher_rollout.
+        choose_teacher_player = namespace.get("teacher_rollout_on_device")
+
+        def timed_teacher_player(*given, **options):
+            player = choose_teacher_player(*given, **options)
+            return None if player is None else timed("teacher_rollout", player)
+        if choose_teacher_player is not None:
+            namespace["teacher_rollout_on_device"] = timed_teacher_player
 
         class TimedRun(namespace["TrainingRun"]):
             """The script's run, recording each update once its row is written (end_update, once per update)."""
@@ -199,9 +210,9 @@ def summarize(records: list[dict]) -> dict:
             "other_share": 1.0 - rollout - shares.get(UPDATE_FUNCTION, 0.0)}
 
 
-def measure(label: str, script: str, env: str, updates: int, flags: list[str], batch: int, device: str) -> dict:
+def measure(label: str, script: str, env: str, updates: int, flags: list[str], batch: int, device: str, fork: bool = False) -> dict:
     """One timed run of `script` on `device` ("cuda" or "cpu"), in a temporary directory, with `batch` steps
-    per rollout."""
+    per rollout: in a fresh interpreter, or in a fork of this process if `fork` (time_script_in_fork)."""
     # A budget the run never reaches before it is stopped (a replay update of ACCEL or PAIRED+Evo counts two batches).
     budget = 2 * (updates + 1) * batch
     arguments = ["--env", env, "--total-timesteps", str(budget), *QUIET, *flags, "--cuda" if device == "cuda" else "--no-cuda"]
@@ -209,19 +220,75 @@ def measure(label: str, script: str, env: str, updates: int, flags: list[str], b
     start = time.time()
     with tempfile.TemporaryDirectory() as cwd:
         report = os.path.join(cwd, "report.json")
+        child = [report, str(updates), os.path.join(ROOT, script), *arguments]
         try:
-            result = subprocess.run([sys.executable, "-c", TIMED_CHILD, report, str(updates), os.path.join(ROOT, script), *arguments],
-                                    cwd=cwd, capture_output=True, text=True, timeout=RUN_TIMEOUT)
+            if fork:
+                returncode, stderr = time_script_in_fork(cwd, child)
+            else:
+                result = subprocess.run([sys.executable, "-c", TIMED_CHILD, *child], cwd=cwd, capture_output=True, text=True, timeout=RUN_TIMEOUT)
+                returncode, stderr = result.returncode, result.stderr
         except subprocess.TimeoutExpired:
             return {**entry, "error": f"timed out after {RUN_TIMEOUT} s"}
-        if result.returncode != 0:
-            return {**entry, "error": (result.stderr.strip().splitlines() or ["no output"])[-1], "stderr_tail": result.stderr[-3000:]}
+        if returncode != 0:
+            return {**entry, "error": (stderr.strip().splitlines() or ["no output"])[-1], "stderr_tail": stderr[-3000:]}
         with open(report) as f:
             timing = json.load(f)
     if timing["device"] != device:
         return {**entry, "error": f"ran on {timing['device']}, not {device}"}
     return {**entry, **summarize(timing["updates"]), "peak_gpu_memory_mib": timing["peak_gpu_memory_mib"],
             "wall_seconds": time.time() - start}
+
+
+# --quick on a Linux machine without CUDA forks each timed child from this process once it has imported torch's
+# compiler front end (which a script's first optimizer step imports): a fresh interpreter spends about 6 s of
+# CPU on torch and it, several times a tiny run's own time. Nothing of cleanued's or tyro is imported before
+# a script, so each script still runs where none of its own imports was made for it (tests/script_runs.py).
+PRELOADED = ("torch._dynamo",)
+
+
+def can_fork() -> bool:
+    """Whether timed children can be forks of this process: on Linux without CUDA (a fork cannot use CUDA
+    once its parent has; a GPU machine's timed runs keep a fresh interpreter each)."""
+    import torch
+
+    return sys.platform == "linux" and not torch.cuda.is_available()
+
+
+def time_script_in_fork(cwd: str, child: list[str]) -> tuple[int, str]:
+    """time_script(*child) in a forked child working in cwd, its output to files there; returns its exit
+    status and standard error. Called from the main thread only (time_runs runs forks one at a time)."""
+    for module in PRELOADED:
+        importlib.import_module(module)
+    out, err = os.path.join(cwd, "stdout.txt"), os.path.join(cwd, "stderr.txt")
+    pid = os.fork()
+    if pid == 0:  # the child: never returns
+        status = 1
+        try:
+            os.chdir(cwd)
+            for fd, path in ((1, out), (2, err)):
+                opened = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+                os.dup2(opened, fd)
+                os.close(opened)
+            time_script(*child)
+            status = 0
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(status)
+    deadline = time.monotonic() + RUN_TIMEOUT
+    while True:
+        ended, status = os.waitpid(pid, os.WNOHANG)
+        if ended:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            raise subprocess.TimeoutExpired(child, RUN_TIMEOUT)
+        time.sleep(0.05)
+    with open(err) as f:
+        return os.waitstatus_to_exitcode(status), f.read()
 
 
 def run_cuda_tests(tests: list[str]) -> dict:
@@ -291,11 +358,13 @@ def speed_jobs(device: str, quick: bool, only: list[str] | None = None) -> list[
     return [(label, script, env, updates, [*flags, *paper_flags], BATCH[env], device) for label, script, env, updates, flags, paper_flags, _ in runs]
 
 
-def time_runs(jobs: list[tuple], workers: int, report: dict, out: str) -> None:
-    """Measure each job, `workers` at a time, adding each entry to the report (written after each) and the log."""
+def time_runs(jobs: list[tuple], workers: int, report: dict, out: str, fork: bool = False) -> None:
+    """Measure each job, `workers` at a time (one at a time in forks of this process if `fork`), adding each
+    entry to the report (written after each) and the log."""
     print("protagonist steps/s over the updates after the first; shares of that time:", flush=True)
     with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-        for entry in pool.map(lambda job: measure(*job), jobs):
+        entries = (measure(*job, fork=True) for job in jobs) if fork else pool.map(lambda job: measure(*job), jobs)
+        for entry in entries:
             report["speed"].append(entry)
             print(speed_line(entry), flush=True)
             write(report, out)
@@ -326,8 +395,8 @@ def main() -> None:
     parser = OneLineErrors(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", required=True, help="the JSON file to write")
     parser.add_argument("--quick", action="store_true",
-                        help="tiny runs of 2 updates, side by side on one thread each, and no CUDA tests: "
-                             "checks that every run works (a minute on 2 cores)")
+                        help="tiny runs of 2 updates on one thread each, and no CUDA tests: checks that every run works "
+                             "(under a minute on 2 cores; without CUDA on Linux each run is a fork of this process)")
     parser.add_argument("--only", nargs="+", metavar="LABEL", choices=[run[0] for run in RUNS],
                         help="time only these runs (their labels, e.g. plr.py 'plr.py --replay-prob 0 (DR)' accel.py paired.py)")
     parser.add_argument("--tests", nargs="+", metavar="FILE", default=TESTS, help=f"the test files to run on the GPU (default: {' '.join(TESTS)})")
@@ -357,9 +426,11 @@ def main() -> None:
     else:
         print("no CUDA here: only the CPU part runs (no CUDA tests, no GPU speed runs)")
     write(report, options.out)
-    if options.quick:  # tiny runs, which time nothing worth keeping, side by side on every core, one thread each
+    if options.quick:  # tiny runs, which time nothing worth keeping, one thread each: forks one at a time, or side by side on every core
         os.environ["OMP_NUM_THREADS"] = "1"  # (torch's default pool in each of them would oversubscribe the cores)
-        time_runs([job for device in devices for job in speed_jobs(device, True, options.only)], os.cpu_count(), report, options.out)
+        torch.set_num_threads(1)  # a fork keeps this process's pool
+        time_runs([job for device in devices for job in speed_jobs(device, True, options.only)], os.cpu_count(), report, options.out,
+                  fork=can_fork())
     else:  # one at a time: the GPU runs, the CUDA tests, then the CPU runs (the least new if time runs out)
         if "cuda" in devices:
             time_runs(speed_jobs("cuda", False, options.only), 1, report, options.out)

@@ -35,6 +35,10 @@ class Registered:
     """its player of the student's whole rollouts on a GPU as "module:name", if it has one: a class built as
     `cls(env, agent, storage, gamma, gae_lambda, device, graph=True)` and called with a batch of levels as a
     script's rollout function is (envs.runs.rollouts_on_device)"""
+    device_teacher_rollout: str | None = None
+    """its player of PAIRED's whole design episodes on a GPU as "module:name", if it has one: a class built as
+    `cls(mdp, teacher, storage, device, graph=True)` (mdp: the env's `teacher()`) and called with no arguments
+    as a script's teacher_rollout is, returning the levels (envs.runs.teacher_rollout_on_device)"""
     steps_in_workers: bool = False
     """whether its copies may step in worker processes (envs/workers.py): each copy's results depend on its
     own level, actions and past alone"""
@@ -44,8 +48,10 @@ class Registered:
 # settings for an env (its PAPER_DEFAULTS) belong to the algorithm; an env without them runs on the
 # script's defaults.
 REGISTRY: dict[str, Registered] = {
-    "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}, device_rollout="envs.maze.on_device:DeviceRollout"),
-    "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}, device_rollout="envs.maze.on_device:DeviceRollout"),
+    "maze": Registered("envs.maze.env:MazeEnv", {"name": "maze"}, device_rollout="envs.maze.on_device:DeviceRollout",
+                       device_teacher_rollout="envs.maze.teacher_on_device:TeacherDeviceRollout"),
+    "maze25": Registered("envs.maze.env:MazeEnv", {"name": "maze25"}, device_rollout="envs.maze.on_device:DeviceRollout",
+                         device_teacher_rollout="envs.maze.teacher_on_device:TeacherDeviceRollout"),
     "carracing": Registered("envs.carracing.env:CarRacingEnv", evaluation_episodes=10, steps_in_workers=True),
     "walker": Registered("envs.walker.env:WalkerEnv", steps_in_workers=True),
 }

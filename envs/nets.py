@@ -43,6 +43,16 @@ class ResettableLSTM(nn.Module):
     (tests/test_nets.py checks both) 2.6-3.6x faster on CPU, and ~1.3x faster than running each episode
     segment as its own padded sequence. The state after a training sequence is never needed: it returns
     None for it.
+
+    The padded length is T plus the most resets of any copy, a number read from `done`; on a GPU that read
+    waits for the device. A caller that runs many passes over one rollout (the PPO update) reads it once
+    and gives it as `most_resets` (at least the most episode starts after step 0 of any copy; a larger
+    number pads more and changes no output). With it a pass has no host sync and fixed shapes.
+
+    The reset weight joins the input weights in a fresh tensor at every fused call, so on a GPU cuDNN
+    copies the weights into one chunk at every call (a few small copies, and its warning). Keeping them in
+    one chunk would need W_ih as a strided view beside the reset column, and a strided parameter takes
+    foreach Adam off its fast path (fused Adam refuses it): tests/test_nets.py keeps the parameters dense.
     """
 
     def __init__(self, input_size: int, hidden_size: int):
@@ -64,7 +74,7 @@ class ResettableLSTM(nn.Module):
         zeros = torch.zeros(1, n, self.hidden_size, device=device)
         return zeros, zeros.clone()
 
-    def forward(self, x: torch.Tensor, state, done: torch.Tensor):
+    def forward(self, x: torch.Tensor, state, done: torch.Tensor, most_resets: int | None = None):
         num_copies = state[0].shape[1]
         steps = x.shape[0] // num_copies
         if steps == 1:
@@ -72,9 +82,9 @@ class ResettableLSTM(nn.Module):
             lstm = self.lstm
             h, c = torch.lstm_cell(x, (state[0][0] * keep, state[1][0] * keep), lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0)
             return h, (h.unsqueeze(0), c.unsqueeze(0))
-        return self._run_with_reset_steps(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool()), None
+        return self._run_with_reset_steps(x.view(steps, num_copies, -1), state, done.view(steps, num_copies).bool(), most_resets), None
 
-    def _run_with_reset_steps(self, x: torch.Tensor, state, done: torch.Tensor) -> torch.Tensor:
+    def _run_with_reset_steps(self, x: torch.Tensor, state, done: torch.Tensor, most_resets: int | None) -> torch.Tensor:
         steps, num_copies, features = x.shape
         copy = torch.arange(num_copies, device=x.device)
         # Step t of copy n moves to position t + (resets of copy n at steps 1..t); a reset at step t
@@ -82,13 +92,15 @@ class ResettableLSTM(nn.Module):
         resets = done.clone()
         resets[0] = False
         position = torch.arange(steps, device=x.device).unsqueeze(1) + resets.long().cumsum(0)
-        length = int(position[-1].max()) + 1
+        length = steps + (int(resets.sum(0).max()) if most_resets is None else most_resets)  # the padded length
         rows = (position * num_copies + copy).reshape(-1)  # each step's row in the [length * N] layout
-        reset_rows = ((position - 1) * num_copies + copy)[resets]
+        # The row before each step t > 0: its reset step's where it has one, else step t - 1's (whose reset
+        # input stays 0). All distinct and as many as the steps, so no shape depends on where episodes start.
+        rows_before = ((position[1:] - 1) * num_copies + copy).reshape(-1)
         # Rows are placed with index_copy (its backward is an index_select) and read back with
         # index_select (its backward an index_add): ~5x cheaper on CPU than indexing's accumulate.
         placed = x.new_zeros(length * num_copies, features).index_copy_(0, rows, x.reshape(steps * num_copies, features))
-        reset_input = x.new_zeros(length * num_copies, 1).index_fill_(0, reset_rows, 1.0)
+        reset_input = x.new_zeros(length * num_copies, 1).index_copy_(0, rows_before, resets[1:].to(x.dtype).reshape(-1, 1))
         inputs = torch.cat([placed, reset_input], 1).view(length, num_copies, features + 1)
         keep = (~done[0]).to(x.dtype).view(1, num_copies, 1)
         lstm = self.lstm
@@ -151,22 +163,23 @@ class RecurrentCategoricalActorCritic(nn.Module):
     def initial_state(self, n: int, device=None):
         return self.lstm.initial_state(n, device)
 
-    def lstm_output(self, obs: dict, state, done):
-        """The LSTM's output [T * N, H] and its new state (None after a training sequence)."""
+    def lstm_output(self, obs: dict, state, done, most_resets: int | None = None):
+        """The LSTM's output [T * N, H] and its new state (None after a training sequence); `most_resets` as
+        ResettableLSTM takes it, for a training sequence."""
         fast_path = self.fast_path()
         if fast_path is not None:
             result = fast_path.lstm_output(self, obs, state, done)
             if result is not None:
                 return result
-        return self.lstm(self.features(obs), state, done)
+        return self.lstm(self.features(obs), state, done, most_resets)
 
-    def dist(self, obs: dict, state, done) -> Categorical:
-        hidden, _ = self.lstm_output(obs, state, done)
+    def dist(self, obs: dict, state, done, most_resets: int | None = None) -> Categorical:
+        hidden, _ = self.lstm_output(obs, state, done, most_resets)
         return Categorical(logits=self.actor(hidden))
 
-    def dist_and_value(self, obs: dict, state, done):
+    def dist_and_value(self, obs: dict, state, done, most_resets: int | None = None):
         """-> the policy distribution and the value, from one pass (for losses that need both)."""
-        hidden, _ = self.lstm_output(obs, state, done)
+        hidden, _ = self.lstm_output(obs, state, done, most_resets)
         return Categorical(logits=self.actor(hidden)), self.critic(hidden).squeeze(-1)
 
     def get_value(self, obs: dict, state, done) -> torch.Tensor:
@@ -189,7 +202,7 @@ class RecurrentCategoricalActorCritic(nn.Module):
         """A fresh action from the policy."""
         return dist.sample()
 
-    def get_action_and_value(self, obs: dict, state, done, action=None):
+    def get_action_and_value(self, obs: dict, state, done, action=None, most_resets: int | None = None):
         """-> action, log-probability, entropy, value, new state (None after a training sequence)."""
         if action is None and not torch.is_grad_enabled():
             fast_path = self.fast_path()
@@ -197,7 +210,7 @@ class RecurrentCategoricalActorCritic(nn.Module):
                 acted = fast_path.act(self, obs, state, done)
                 if acted is not None:
                     return acted
-        hidden, state = self.lstm_output(obs, state, done)
+        hidden, state = self.lstm_output(obs, state, done, most_resets)
         dist = Categorical(logits=self.actor(hidden))
         if action is None:
             action = self.sample(dist)

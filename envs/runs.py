@@ -23,6 +23,7 @@ from matplotlib.image import imread
 
 import envs
 from envs import keep_freed_memory
+from envs.workers import WORKERS_ENV_VAR
 
 
 def fail(message: str) -> None:
@@ -220,6 +221,31 @@ def rollouts_on_device(env, agent, storage, args, device: torch.device, normaliz
         return None
     module, name = registered.device_rollout.split(":")
     return getattr(importlib.import_module(module), name)(env, agent, storage, args.gamma, args.gae_lambda, device, graph=True)
+
+
+def env_workers(requested: int | None, device: torch.device) -> int | None:
+    """--env-workers: the processes stepping CarRacing's and the walker's copies (envs.make; the maze ignores it).
+    Unset: None where $CLEANUED_ENV_WORKERS is set (envs.make reads it), else on a GPU one per CPU core but
+    the script's own, the cores the env would leave idle; on a CPU 0, as measured best on 2 shared cores
+    (docs/performance.md). A negative count is an error line."""
+    if requested is not None and requested < 0:
+        fail(f"--env-workers {requested}: a count of processes, 0 or more (0: step the copies in this process)")
+    if requested is not None or os.environ.get(WORKERS_ENV_VAR, "").strip():
+        return requested
+    return max((os.cpu_count() or 1) - 1, 0) if device.type == "cuda" else 0
+
+
+def teacher_rollout_on_device(mdp, teacher, storage, args, device: torch.device):
+    """The env's own player of PAIRED's whole design episodes on a GPU (the maze's, envs/maze/teacher_on_device.py:
+    the teacher's MDP as torch ops, each episode one CUDA graph), called with no arguments as the script's
+    teacher_rollout (bound to its arguments) is: it fills the teacher's storage and returns the levels. None where
+    teacher_rollout plays them: on a CPU, with --no-device-rollouts, or for an env without one (its REGISTRY entry
+    names none)."""
+    registered = envs.REGISTRY.get(args.env)
+    if device.type != "cuda" or not args.device_rollouts or registered is None or registered.device_teacher_rollout is None:
+        return None
+    module, name = registered.device_teacher_rollout.split(":")
+    return getattr(importlib.import_module(module), name)(mdp, teacher, storage, device, graph=True)
 
 
 # A run's two newest checkpoints, and the manifest that records each one's size, sha256, update and global_step.

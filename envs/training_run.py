@@ -11,7 +11,9 @@ A run directory, runs/<env>__<exp_name>__<seed>__<unix time>/, holds args.json (
 the student's class), metrics.csv (one row per update), TensorBoard events, checkpoint.pt and
 checkpoint_previous.pt (the two newest checkpoints) with checkpoint.json (their sizes and sha256: a damaged
 checkpoint is found before it loads, and the run resumes from the other), levels_<update>.png, eval.json
-and eval_<steps>.json (the held-out evaluation at the end and at each milestone) and curves.png.
+and eval_<steps>.json (the held-out evaluation at the end and at each milestone) and curves.png. A run
+given --eval-episodes 0 evaluates nothing: no validation (its val_* columns stay empty), no eval.json (the
+scripts refuse milestones with it), for tests and timings that need none.
 
 A checkpoint holds each piece of the script's `state`, under its name (a dict of pieces nests): a network,
 an optimizer, a return normalizer or a level buffer (anything with state_dict and load_state_dict), a
@@ -163,15 +165,16 @@ class TrainingRun:
 
     def end_update(self, agent, row: dict, last: bool, **counters) -> None:
         """After each update: the validation every eval_interval updates and at the last (its columns join
-        the row); the held-out evaluation at each milestone the update passed (the last update's come with
-        the final evaluation, `finish`); the row into metrics.csv, TensorBoard and wandb; a checkpoint every
-        checkpoint_interval updates, at the last, MAX_SECONDS_BETWEEN_CHECKPOINTS after the one before and
-        after SIGTERM, with `counters` (update, global_step and the rest). After SIGTERM the run then exits
-        (status STOPPED_BY_SIGTERM), but in its last update, which goes on to the final evaluation (a run
-        resumed after it would lack the evaluations of the milestones that update reached)."""
+        the row; none with eval_episodes 0); the held-out evaluation at each milestone the update passed (the
+        last update's come with the final evaluation, `finish`); the row into metrics.csv, TensorBoard and
+        wandb; a checkpoint every checkpoint_interval updates, at the last, MAX_SECONDS_BETWEEN_CHECKPOINTS
+        after the one before and after SIGTERM, with `counters` (update, global_step and the rest). After
+        SIGTERM the run then exits (status STOPPED_BY_SIGTERM), but in its last update, which goes on to the
+        final evaluation (a run resumed after it would lack the evaluations of the milestones that update
+        reached)."""
         args, update, steps_before = self.args, counters["update"], self.counters["global_step"]
         self.counters = counters
-        if update % args.eval_interval == 0 or last:
+        if (update % args.eval_interval == 0 or last) and args.eval_episodes:
             agent.eval()
             validation = evaluate_all(agent, args.env, self.env.validation_levels, args.eval_episodes, args.seed, self.device)
             row["val_solved_rate"] = np.mean([r["solved_rate"] for r in validation.values()])
@@ -225,18 +228,21 @@ class TrainingRun:
         log_image(self.tensorboard, path, self.counters["global_step"], self.args.track)
 
     def finish(self, agent, curves: list[tuple[str, list[str]]]) -> None:
-        """The final zero-shot evaluation on every held-out level (eval.json, and the last update's milestones),
-        GIFs with --capture-video, and curves.png: `curves`, (title, metrics.csv columns) per panel. SIGTERM
-        ends it at once (its checkpoint is saved)."""
+        """The final zero-shot evaluation on every held-out level (eval.json, and the last update's milestones;
+        none with eval_episodes 0), GIFs with --capture-video, and curves.png: `curves`, (title, metrics.csv
+        columns) per panel. SIGTERM ends it at once (its checkpoint is saved)."""
         signal.signal(signal.SIGTERM, self.sigterm_handler_before)
         self.metrics_file.close()
         self.tensorboard.close()
         args = self.args
         agent.eval()
-        paths = [os.path.join(self.dir, name) for name in ["eval.json", *(f"eval_{steps}.json" for steps in self.milestones_at_end)]]
-        results = save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, self.device, paths)
-        for name, r in results.items():
-            print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
+        if args.eval_episodes:
+            paths = [os.path.join(self.dir, name) for name in ["eval.json", *(f"eval_{steps}.json" for steps in self.milestones_at_end)]]
+            results = save_held_out_evaluation(agent, args.env, args.eval_episodes, args.seed, self.device, paths)
+            for name, r in results.items():
+                print(f"  {name:24s} solved {r['solved_rate']:.2f}  return {r['mean_return']:.3f}")
+        else:
+            print("  no evaluation (--eval-episodes 0)")
         if args.capture_video:
             capture_videos(agent, args.env, list(self.env.test_levels()), args.seed, self.device, os.path.join(self.dir, "videos"))
         save_curves(os.path.join(self.dir, "metrics.csv"), os.path.join(self.dir, "curves.png"), curves)

@@ -11,9 +11,9 @@ which has imported all of that once, skips the imports. The child is still a pro
 Everything the script changes dies with the child. A fresh interpreter is started instead where fork is
 missing or unsafe: off Linux, or with a GPU (a forked child cannot use CUDA once this process has asked for
 it, and the tests' skip marks do). Some tests always start one: those of what a user types (test_recipes.py,
-test_modified_student.py), the sweeps' (test_sweep.py) and gpu_check.py's quick check of every script
-(test_gpu_check.py). So each script also runs where nothing is imported before it, and an import it lacks but
-this process has made shows there.
+test_modified_student.py) and the sweeps' (test_sweep.py); and gpu_check.py's quick check of every script
+(test_gpu_check.py) runs each in a fork of a process that has imported torch alone. So each script also runs
+where none of its own imports was made before it, and an import it lacks but this process has made shows there.
 
 `run(argv, cwd)` returns a subprocess.CompletedProcess. `start(argv, cwd)` returns a handle with the part of
 subprocess.Popen's interface that the kill tests use. argv is the command line after `python`:

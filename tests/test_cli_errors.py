@@ -129,3 +129,15 @@ def test_resuming_another_scripts_run_is_one_error_line(writer, reader, tmp_path
     with pytest.raises(SystemExit) as exit_info:
         reader.resolve_args(reader.paper_args(resume=str(tmp_path)))
     assert_one_error_line(exit_info.value.code, capsys.readouterr().err, [f"a run of {os.path.basename(writer.__file__)}"])
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=IDS)
+def test_eval_episodes_0_is_taken_and_a_negative_count_or_milestones_with_it_refused(script, monkeypatch, capsys):
+    """--eval-episodes 0 (no evaluation) passes the script's checks; a negative count, or 0 with --milestones (each
+    one an evaluation), is one `error:` line and status 2."""
+    assert script.resolve_args(parsed(script, ["--eval-episodes", "0"], monkeypatch)).eval_episodes == 0
+    for argv in (["--eval-episodes", "-1"], ["--eval-episodes", "0", "--milestones", "1000"]):
+        with pytest.raises(SystemExit) as exit_info:
+            script.resolve_args(parsed(script, argv, monkeypatch))
+        assert_one_error_line(exit_info.value.code, capsys.readouterr().err, ["--eval-episodes", "--milestones"])
+    assert script.resolve_args(parsed(script, ["--eval-episodes", "1", "--milestones", "1000"], monkeypatch)).milestones == (1000,)

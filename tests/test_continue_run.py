@@ -1,8 +1,7 @@
 """A run continued to a longer budget (`--resume RUN_DIR --total-timesteps N`) must equal a run given N steps
 from the start: metrics.csv row for row in every training column (the validation at the first part's end
-may stay), and the same held-out evaluations. Every script on the maze; on CarRacing, whose runs carry
-more state (return normalizers, the tracks' generators), the two scripts its long campaign continues, a
-curator's (plr.py) and a PAIRED-family one's (paired_bc.py, BiBC), with the code of the other four's
+may stay), and the same held-out evaluations. Every script on the maze; on CarRacing the two scripts its
+long campaign continues (tests/test_continue_run_carracing.py), with the code of the other four's
 continuation the same as theirs (the shared envs.runs.resumed_args and record_continuation, and the same
 few lines in each loop). Each tiny run costs a process start and its evaluations, hence no more cases. The
 uninterrupted run also evaluates at a milestone (`--milestones`), which must leave its training as it is
@@ -17,14 +16,10 @@ import json
 import os
 
 import pytest
-from conftest import f1_track_file
 from test_scripts_accel_evo import only_run_dir, read_metrics, run
 
 MAZE = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--eval-episodes", "1", "--eval-interval", "100",
         "--checkpoint-interval", "1"]
-# CarRacing's held-out and validation levels here: the vanilla track and Italy (a track file of it alone).
-CARRACING = ["--env", "carracing", "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
-             "--eval-episodes", "1", "--eval-interval", "100", "--checkpoint-interval", "1"]
 PAIRED_MAZE = ["--teacher-conv-channels", "4"]
 CURATOR = ["--level-buffer-size", "4"]
 # (script, env flags, the script's flags, B: the first part's budget in env steps; 2 or 3 updates)
@@ -35,8 +30,6 @@ CASES = {
     "paired_hient-maze": ("paired_hient.py", MAZE, PAIRED_MAZE, 256),
     "paired_bc-maze": ("paired_bc.py", MAZE, [*PAIRED_MAZE, "--bc-interval", "1"], 256),
     "paired_evo-maze": ("paired_evo.py", MAZE, [*CURATOR, "--bc-coef", "0.1", "--bc-interval", "1"], 384),
-    "plr-carracing": ("plr.py", CARRACING, CURATOR, 32),
-    "paired_bc-carracing": ("paired_bc.py", CARRACING, ["--bidirectional", "--bc-interval", "1"], 32),
 }
 TIMING = ("sps", "time_")
 
@@ -49,20 +42,23 @@ def continued(script, flags, budget, cwd):
     return first, run(script, ["--resume", only_run_dir(cwd), "--total-timesteps", str(2 * budget), "--milestones", str(2 * budget)], cwd)
 
 
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory):
-    """{case: ((first part, continuation), its cwd, uninterrupted run, its cwd)}"""
-    cwds = {(case, kind): tmp_path_factory.mktemp(f"{case}-{kind}") for case in CASES for kind in ("continued", "straight")}
-    tracks = ["--f1-tracks", f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy")]
+def play(cases: dict, tmp_path_factory, extra_flags=()) -> dict:
+    """{case: ((first part, continuation), its cwd, uninterrupted run, its cwd)}, two runs at a time."""
+    cwds = {(case, kind): tmp_path_factory.mktemp(f"{case}-{kind}") for case in cases for kind in ("continued", "straight")}
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
         futures = {}
-        for case, (script, env_flags, flags, budget) in CASES.items():
-            env_flags = [*env_flags, *tracks] if env_flags is CARRACING else env_flags
-            futures[case, "continued"] = pool.submit(continued, script, [*env_flags, *flags], budget, cwds[case, "continued"])
-            futures[case, "straight"] = pool.submit(run, script, [*env_flags, *flags, "--total-timesteps", str(2 * budget),
-                                                                  "--milestones", str(budget)], cwds[case, "straight"])
+        for case, (script, env_flags, flags, budget) in cases.items():
+            flags = [*env_flags, *extra_flags, *flags]
+            futures[case, "continued"] = pool.submit(continued, script, flags, budget, cwds[case, "continued"])
+            futures[case, "straight"] = pool.submit(run, script, [*flags, "--total-timesteps", str(2 * budget), "--milestones", str(budget)],
+                                                    cwds[case, "straight"])
         return {case: (futures[case, "continued"].result(), cwds[case, "continued"], futures[case, "straight"].result(),
-                       cwds[case, "straight"]) for case in CASES}
+                       cwds[case, "straight"]) for case in cases}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    return play(CASES, tmp_path_factory)
 
 
 def training_columns(row: dict) -> dict:
@@ -79,8 +75,12 @@ def test_a_run_continued_to_a_longer_budget_equals_one_given_it_from_the_start(f
     """Catches a budget that something besides the loop's end depends on, state lost at the first part's
     end, and a milestone's evaluation that draws from training's random streams or differs from the final
     evaluation of a run of that budget."""
-    (first, continuation), cwd, straight, straight_cwd = finished[case]
-    budget = CASES[case][3]
+    check_continued(finished[case], CASES[case][3])
+
+
+def check_continued(played, budget: int) -> None:
+    """A case's continued run against its uninterrupted one (`play`'s entry for it)."""
+    (first, continuation), cwd, straight, straight_cwd = played
     assert first.returncode == 0, first.stderr[-3000:]
     assert continuation.returncode == 0, continuation.stderr[-3000:]
     assert straight.returncode == 0, straight.stderr[-3000:]

@@ -24,6 +24,7 @@ DIFFERENT_BY_DESIGN = {
     "Rollout": ([PLR_FAMILY, PAIRED_FAMILY], "shaped from the env, or from a first observation (three agents)"),
     "minibatch_rows": ([PLR_FAMILY, PAIRED_FAMILY], "PAIRED's serves students and teacher of other sizes"),
     "ppo_update": ([PLR_FAMILY, ["paired.py", "paired_hient.py"]], "paired_bc.py and paired_evo.py add the cloning term"),
+    "ppo_loss": ([PLR_FAMILY + ["paired.py", "paired_hient.py"], ["paired_bc.py", "paired_evo.py"]], "paired_bc.py and paired_evo.py add the cloning term"),
     "regret": ([["paired.py", "paired_hient.py", "paired_bc.py"]], "PAIRED+Evo's buffer score is not clipped at 0"),
 }
 # name: the module of envs/ that holds the same code for its other users (a script writes it out for its reader).

@@ -5,6 +5,7 @@ a worker's error raised here; a worker's death stopping the run with one `error:
 from __future__ import annotations
 
 import contextlib
+import csv
 import os
 import signal
 import sys
@@ -12,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+import torch
 
 import envs
 import script_runs
@@ -137,6 +139,40 @@ def test_make_takes_the_workers_from_the_environment_variable(monkeypatch):
     monkeypatch.setenv(WORKERS_ENV_VAR, "two")
     with pytest.raises(ValueError, match="CLEANUED_ENV_WORKERS must be a whole number"):
         envs.make("walker", 4, 0)
+
+
+def test_env_workers_flag_default_is_the_spare_cores_on_a_gpu_and_none_on_a_cpu(monkeypatch):
+    from envs.runs import env_workers
+
+    monkeypatch.delenv(WORKERS_ENV_VAR, raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 16)
+    cpu, gpu = torch.device("cpu"), torch.device("cuda")
+    assert (env_workers(None, cpu), env_workers(None, gpu)) == (0, 15)  # the script's process keeps one core
+    assert (env_workers(0, gpu), env_workers(4, cpu)) == (0, 4)  # the flag first
+    monkeypatch.setenv(WORKERS_ENV_VAR, "3")
+    assert env_workers(None, gpu) is None and env_workers(2, gpu) == 2  # unset: envs.make reads the variable
+
+
+CARRACING_RUN = ["--env", "carracing", "--num-envs", "3", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
+                 "--total-timesteps", "48", "--f1-tracks", "none", "--eval-episodes", "0", "--log-interval", "1"]
+
+
+def test_a_run_with_env_workers_logs_what_it_logs_in_process(tmp_path):
+    """paired_bc.py on CarRacing, its copies stepped in 2 worker processes (`--env-workers 2`, as announced)
+    and in its own process: the same metrics, timings aside. A bad count is one error line."""
+    rows = {}
+    for workers in ("0", "2"):
+        cwd = tmp_path / workers
+        cwd.mkdir()
+        result = script_runs.run([os.path.join(ROOT, "paired_bc.py"), *CARRACING_RUN, "--env-workers", workers], cwd, timeout=300)
+        assert result.returncode == 0, result.stderr[-3000:]
+        assert ("step in 2 worker processes" in result.stdout) == (workers == "2")
+        (run_dir,) = (cwd / "runs").iterdir()
+        with open(run_dir / "metrics.csv", newline="") as f:
+            rows[workers] = [{k: v for k, v in row.items() if k != "sps" and not k.startswith("time_")} for row in csv.DictReader(f)]
+    assert rows["0"] == rows["2"] and len(rows["0"]) == 2
+    refused = script_runs.run([os.path.join(ROOT, "paired_bc.py"), *CARRACING_RUN, "--env-workers", "-1"], tmp_path, timeout=120)
+    assert refused.returncode == 2 and refused.stderr.startswith("error: --env-workers -1") and len(refused.stderr.splitlines()) == 1
 
 
 def test_an_error_in_a_worker_is_raised_here_as_in_process():

@@ -98,3 +98,40 @@ def test_sequence_path_gradients_reach_the_initial_state_and_inputs():
     for a, b in zip(grads_fast, grads_slow):
         assert torch.allclose(a, b, atol=1e-5)
     assert grads_fast[1][0, 1].abs().max() == 0 and grads_fast[1][0, 0].abs().max() > 0
+
+
+def test_a_given_padding_gives_the_same_sequence_pass():
+    """The PPO update reads the most resets of any copy once and gives it as `most_resets`: the same outputs and
+    gradients as the LSTM reading it from `done` itself, bit for bit; a larger bound only pads more at the end."""
+    torch.manual_seed(4)
+    lstm = ResettableLSTM(6, 10)
+    steps, copies = 20, 5
+    x = torch.randn(steps * copies, 6)
+    done = (torch.rand(steps * copies) < 0.2).float()
+    most_resets = int(done.view(steps, copies)[1:].sum(0).max())
+    assert most_resets >= 2
+    passes = []
+    for given in (None, most_resets, most_resets + 7):
+        lstm.zero_grad()
+        out, _ = lstm(x, lstm.initial_state(copies), done, given)
+        out.square().sum().backward()
+        passes.append([out.detach()] + [p.grad.clone() for p in lstm.parameters()])
+    assert all(torch.equal(a, b) for a, b in zip(passes[0], passes[1]))
+    assert all(torch.allclose(a, b, atol=1e-5) for a, b in zip(passes[0], passes[2]))
+
+
+def test_the_parameters_stay_dense_for_foreach_and_fused_adam():
+    """Each LSTM parameter is a dense tensor, as foreach Adam's fast path needs (one strided parameter sends all of
+    its group's foreach ops to the per-tensor loop; fused Adam refuses it on a GPU): after construction, after
+    load_state_dict and after optimizer steps. Why the weights are not one cuDNN chunk: ResettableLSTM's docstring."""
+    torch.manual_seed(5)
+    lstm = ResettableLSTM(7, 12)
+    lstm.load_state_dict(ResettableLSTM(7, 12).state_dict())
+    optimizer = torch.optim.Adam(lstm.parameters(), lr=1e-3, foreach=True)
+    for _ in range(2):
+        out, _ = lstm(torch.randn(5 * 3, 7), lstm.initial_state(3), torch.zeros(5 * 3))
+        optimizer.zero_grad()
+        out.sum().backward()
+        optimizer.step()
+    for param in lstm.parameters():
+        assert param.is_contiguous()

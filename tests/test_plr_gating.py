@@ -18,8 +18,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # plr.py: UPDATES updates of 2 x 16 steps; a buffer of 2 levels is full after update 1, so replays start at update 2.
 UPDATES = 12
 TINY = ["--env", "maze", "--num-envs", "2", "--num-steps", "16", "--level-buffer-size", "2", "--total-timesteps", str(UPDATES * 32),
-        "--eval-episodes", "1", "--eval-interval", "1000", "--checkpoint-interval", "1", "--levels-interval", "1000",
-        "--log-interval", "1000"]
+        "--eval-episodes", "0", "--checkpoint-interval", "1", "--levels-interval", "1000", "--log-interval", "1000"]
 # script, flags, the students it trains (their checkpoint keys, with "<name>_optimizer" or "optimizer"),
 # whether it steps on replayed levels only
 CURATORS = {

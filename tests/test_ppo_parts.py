@@ -36,7 +36,7 @@ def test_return_normalizer_clips_at_ten():
 def test_feed_forward_minibatches_cover_every_step_once_in_random_order():
     args = plr.paper_args(num_envs=3, num_steps=4, num_minibatches=2)
     np.random.seed(0)
-    batches = list(plr.minibatch_rows(False, args, "cpu"))
+    batches = list(plr.minibatch_rows(False, args, "cpu")[0])
     assert [len(b) for b in batches] == [6, 6]
     rows = torch.cat(batches)
     assert sorted(rows.tolist()) == list(range(12)) and rows.tolist() != list(range(12))
@@ -45,7 +45,7 @@ def test_feed_forward_minibatches_cover_every_step_once_in_random_order():
 def test_recurrent_minibatches_hold_whole_rollouts_time_major():
     """Copy n's steps are rows t * num_envs + n; a minibatch of copies lists them time-major."""
     np.random.seed(0)
-    batches = list(paired.minibatch_rows(True, num_steps=3, n=4, num_minibatches=2, device="cpu"))
+    batches = list(paired.minibatch_rows(True, num_steps=3, n=4, num_minibatches=2, update_epochs=1, device="cpu")[0])
     assert len(batches) == 2
     for rows in batches:
         copies = rows[:2] % 4  # the 2 copies of this minibatch, in its order
@@ -56,8 +56,8 @@ def test_recurrent_minibatches_hold_whole_rollouts_time_major():
 
 def test_a_single_minibatch_is_the_whole_batch_as_a_view():
     storage = torch.arange(24.0).view(4, 3, 2)  # [T, N, features]
-    for batches in (list(plr.minibatch_rows(True, plr.paper_args(num_envs=3, num_steps=4, num_minibatches=1), "cpu")),
-                    list(paired.minibatch_rows(False, num_steps=4, n=3, num_minibatches=1, device="cpu"))):
+    for batches in (list(plr.minibatch_rows(True, plr.paper_args(num_envs=3, num_steps=4, num_minibatches=1), "cpu")[0]),
+                    list(paired.minibatch_rows(False, num_steps=4, n=3, num_minibatches=1, update_epochs=1, device="cpu")[0])):
         assert len(batches) == 1
         flat = storage.reshape(12, 2)[batches[0]]
         assert torch.equal(flat, storage.reshape(12, 2)) and flat.data_ptr() == storage.data_ptr()

@@ -223,8 +223,9 @@ def test_each_scores_rank_correlation_with_the_true_regret():
     assert score_true_regret_correlations(None, returns, scores) == {}  # an env without a solver
 
 
+# (--eval-episodes 0: no evaluation, which only the kill test, comparing its runs' validations, asks for)
 TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "64", "--level-buffer-size", "8", "--total-timesteps", "1536",
-        "--eval-episodes", "1", "--eval-interval", "100", "--levels-interval", "100", "--checkpoint-interval", "1"]
+        "--eval-episodes", "0", "--levels-interval", "100", "--checkpoint-interval", "1"]
 # script, score, the run's default name, its options beyond TINY. Learnability is above 0 only on a level
 # with both a solved and a failed episode in one rollout; a failure takes the maze's 250 steps, so its runs
 # play 512-step rollouts (where some levels show it). PAIRED+Evo's runs start from random levels: its
@@ -265,7 +266,8 @@ def test_every_curator_logs_every_scores_correlation_per_update(key, tmp_path):
 def test_a_killed_max_mc_run_resumes_to_the_same_result(tmp_path):
     """MaxMC ranks replayed levels by their records: a record lost or reset by the checkpoint changes the
     scores after the resume, and the runs part."""
-    config = [*TINY, "--num-steps", "128", "--total-timesteps", "6144", "--seed", "2", "--score-function", "max_mc"]
+    config = [*TINY, "--num-steps", "128", "--total-timesteps", "6144", "--seed", "2", "--score-function", "max_mc",
+              "--eval-episodes", "1", "--eval-interval", "100"]
     (tmp_path / "straight").mkdir()
     (tmp_path / "killed").mkdir()
     straight = run("plr.py", config, tmp_path / "straight")

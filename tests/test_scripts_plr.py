@@ -61,7 +61,8 @@ def test_modes_write_a_complete_run(tmp_path, mode, flags, trains_every_update):
 
 
 def test_maze25_runs(tmp_path):
-    result = run(["--env", "maze25", "--total-timesteps", "256", *TINY], tmp_path)
+    """(no evaluation: the maze25 runs of test_scripts_paired.py check it)"""
+    result = run(["--env", "maze25", "--total-timesteps", "256", *TINY, "--eval-episodes", "0"], tmp_path)
     assert result.returncode == 0, result.stderr
     assert float(read_metrics(only_run_dir(tmp_path))[0]["walls"]) <= 25
 

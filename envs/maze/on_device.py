@@ -145,7 +145,32 @@ def episode_returns(rewards: np.ndarray, starts: np.ndarray, last_step_ended: np
     return returns
 
 
-class DeviceRollout:
+class CapturedPlay:
+    """A player whose `play` runs with no host sync, so that on a GPU it can be captured once as a CUDA graph
+    and replayed (`replay_graph`); it keeps `cuda_graph` (None until captured), `device` and `graph_replays`."""
+
+    def replay_graph(self) -> None:
+        """Replay the captured `play`; capture it first (after warm-up runs on a side stream, as CUDA
+        graphs need). The random stream is put back after the capture, so the replays draw what they
+        would have drawn had the graph been captured earlier: a resumed run captures anew and goes on
+        exactly."""
+        if self.cuda_graph is None:
+            random_state = torch.cuda.get_rng_state(self.device)
+            side = torch.cuda.Stream(self.device)
+            side.wait_stream(torch.cuda.current_stream(self.device))
+            with torch.cuda.stream(side):
+                for _ in range(2):
+                    self.play()
+            torch.cuda.current_stream(self.device).wait_stream(side)
+            self.cuda_graph = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(self.cuda_graph):
+                self.play()
+            torch.cuda.set_rng_state(random_state, self.device)
+        self.cuda_graph.replay()
+        self.graph_replays += 1
+
+
+class DeviceRollout(CapturedPlay):
     """Plays the student's maze rollouts on its device into a script's storage (obs, actions, logprobs,
     values, rewards, episode_starts, and last_step_ended where it has one), as the script's
     own rollout does.
@@ -229,26 +254,6 @@ class DeviceRollout:
         self.last_step_ended = ended
         if hasattr(self.storage, "last_step_ended"):
             self.storage.last_step_ended.copy_(ended)
-
-    def replay_graph(self) -> None:
-        """Replay the captured rollout; capture it first (after warm-up runs on a side stream, as CUDA
-        graphs need). The random stream is put back after the capture, so the rollouts draw what they
-        would have drawn had the graph been captured earlier: a resumed run captures anew and goes on
-        exactly."""
-        if self.cuda_graph is None:
-            random_state = torch.cuda.get_rng_state(self.device)
-            side = torch.cuda.Stream(self.device)
-            side.wait_stream(torch.cuda.current_stream(self.device))
-            with torch.cuda.stream(side):
-                for _ in range(2):
-                    self.play()
-            torch.cuda.current_stream(self.device).wait_stream(side)
-            self.cuda_graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(self.cuda_graph):
-                self.play()
-            torch.cuda.set_rng_state(random_state, self.device)
-        self.cuda_graph.replay()
-        self.graph_replays += 1
 
     def play_plain(self, obs: dict) -> None:
         """A net with no fast path: its own acting step (Categorical.sample) on the device env, step by step."""
