@@ -21,6 +21,7 @@ from envs.carracing.env import BUILTIN_NAMES, CarRacingEnv, fixed_levels
 from envs.interface import Env
 from envs.walker.env import WalkerEnv
 from envs.workers import WORKERS_ENV_VAR, EnvWorkerDied, WorkerSteppedEnv
+from envs import workers as env_workers_module
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COPIES = 3  # split 2 + 1 between two workers: a worker of several copies and one of a single copy
@@ -161,6 +162,7 @@ def test_a_run_with_env_workers_logs_what_it_logs_in_process(tmp_path):
     """paired_bc.py on CarRacing, its copies stepped in 2 worker processes (`--env-workers 2`, as announced)
     and in its own process: the same metrics, timings aside. A bad count is one error line."""
     rows = {}
+    env_workers_module._ANNOUNCED.clear()  # said once per process: a fork of this one would inherit an earlier test's
     for workers in ("0", "2"):
         cwd = tmp_path / workers
         cwd.mkdir()

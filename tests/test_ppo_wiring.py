@@ -232,3 +232,35 @@ def test_teacher_returns_divide_the_regret_by_the_running_std(script):
     assert torch.allclose(storage.rewards[-1], torch.tensor([0.3, 0.0]), atol=1e-6)
     assert normalizer.count == 1e12 + 2  # it saw both regrets ...
     assert np.all(normalizer.returns == 0.0)  # ... as the returns of finished episodes
+
+
+@pytest.mark.parametrize("script", TEACHER_SCRIPTS, ids=names(TEACHER_SCRIPTS))
+def test_each_agent_trains_with_its_own_entropy_coefficient(script, tmp_path, monkeypatch):
+    """The main loop hands the students' entropy coefficient to the students' PPO updates and the teacher's to
+    the teacher's (two distinct values here), in one update of the script run as a user runs it. Catches a
+    teacher trained with the students' bonus, which undoes PAIRED+HiEnt's fix of the teacher's entropy."""
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "benchmarks"))
+    from gpu_check import run_script
+
+    calls = []
+
+    def instrument(namespace):
+        update = namespace["ppo_update"]
+
+        def recording(agent, optimizer, storage, advantages, returns, ent_coef, *rest, **options):
+            calls.append((type(agent).__name__, ent_coef))
+            return update(agent, optimizer, storage, advantages, returns, ent_coef, *rest, **options)
+        namespace["ppo_update"] = recording
+
+    monkeypatch.chdir(tmp_path)
+    numpy_state = np.random.get_state()
+    with torch.random.fork_rng():  # the script seeds the global generators: leave the other tests' alone
+        run_script(script.__file__, ["--env", "maze", "--num-envs", "2", "--num-steps", "16", "--total-timesteps", "32",
+                                     "--teacher-conv-channels", "4", "--student-ent-coef", "0.003", "--teacher-ent-coef", "0.07",
+                                     "--eval-episodes", "0", "--levels-interval", "1000"], instrument)
+    np.random.set_state(numpy_state)
+    assert sorted(set(calls)) == [("MazeStudent", 0.003), ("MazeTeacher", 0.07)], calls
+    assert len(calls) == 3  # both students and the teacher, once each
