@@ -77,3 +77,38 @@ def test_weights_change_exactly_on_the_updates_that_train(tmp_path, monkeypatch,
     if replay_only:
         successive = set(zip(replay, replay[1:]))
         assert (False, True) in successive and (True, False) in successive, "the run needs both kinds of update in turn"
+
+
+@pytest.mark.parametrize("curator", ["Robust PLR", "ACCEL", "PAIRED+Evo"])
+def test_every_replayed_level_is_rescored(tmp_path, monkeypatch, curator):
+    """A replay update scores the levels it replayed anew (Robust PLR's and ACCEL's buffer keeps the latest
+    score of a level, not the one it entered with): the script's LevelBuffer.update_scores runs once per
+    replay update, on exactly the replayed levels, and the buffer then holds those scores. Catches a
+    curator that never rescores what it replays, whose buffer keeps sampling stale scores."""
+    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+    from gpu_check import run_script
+
+    script, flags, _, _ = CURATORS[curator]
+    rescored = []
+
+    def instrument(namespace):
+        buffer_class = namespace["LevelBuffer"]
+        update_scores = buffer_class.update_scores
+
+        def recording(buffer, index, scores):
+            update_scores(buffer, index, scores)
+            rescored.append((np.array(index), np.array(scores), buffer.scores[index].copy()))
+        monkeypatch.setattr(buffer_class, "update_scores", recording)
+
+    monkeypatch.chdir(tmp_path)
+    numpy_state = np.random.get_state()
+    with torch.random.fork_rng():  # the script seeds the global generators: leave the other tests' alone
+        run_script(os.path.join(ROOT, script), [*TINY, *flags], instrument)
+    np.random.set_state(numpy_state)
+    (run_dir,) = os.listdir(tmp_path / "runs")
+    with open(tmp_path / "runs" / run_dir / "metrics.csv", newline="") as f:
+        replays = sum(row["replay"] == "1" for row in csv.DictReader(f))
+    assert replays >= 2 and len(rescored) == replays
+    for index, scores, held in rescored:  # the run's 2 copies; a level sampled twice keeps its last score
+        latest = dict(zip(index.tolist(), scores))
+        assert len(index) == 2 and np.array_equal(held, np.array([latest[i] for i in index.tolist()], dtype=held.dtype))
