@@ -15,10 +15,10 @@ from envs.levels import HeldOutLevel
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SEED = 1
-# 16 copies x 128 steps on the CPU; one cheap validation and final evaluation (an episode per level), no
-# checkpoint or level image before the last update.
+# 16 copies x 128 steps on the CPU; no validation or final evaluation (the tests evaluate the checkpoint's
+# student themselves), no checkpoint or level image before the last update.
 SMALL = ["--env", "maze", "--num-envs", "16", "--num-steps", "128",
-         "--eval-episodes", "1", "--eval-interval", "1000", "--checkpoint-interval", "1000", "--levels-interval", "1000", "--no-cuda"]
+         "--eval-episodes", "0", "--checkpoint-interval", "1000", "--levels-interval", "1000", "--no-cuda"]
 STEPS_PER_UPDATE = 16 * 128
 
 
