@@ -1,6 +1,6 @@
 """The sweep launcher (results/sweep.py) resuming and collecting: a 2-run sweep of tiny runs, one run killed
-mid-way and resumed by launching the sweep again; a sweep file that raises a finished run's budget; and
-collecting finished runs and runs still going. The queue itself: test_sweep.py."""
+mid-way and resumed by launching the sweep again, then collected; collecting a run still going. The queue
+itself: test_sweep.py; stopping runs and continuing finished ones: test_sweep_stops.py."""
 
 import json
 import os
@@ -52,31 +52,6 @@ def test_a_killed_sweep_resumes_and_collects(tmp_path):
         assert sorted(os.listdir(collected / name / "1")) == ["agent.pt", "args.json", "eval.json", "levels.png", "metrics.csv"]
     weights = torch.load(collected / "dr" / "1" / "agent.pt", weights_only=True)
     assert "lstm.lstm.weight_hh_l0" in weights and not any("optimizer" in k for k in weights)
-
-
-def test_a_sweep_file_that_raises_the_budget_continues_its_finished_runs(tmp_path):
-    """A finished DR run of 512 steps; the same sweep with a budget of 1024 and milestones continues it
-    (it is not skipped as finished, nor started anew) to 1024, where its first end's evaluation is kept as
-    eval_512.json; a third launch with the old budget skips it. Collecting a run still going copies its
-    milestones so far and no eval.json."""
-    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "512", *TINY[TINY.index("--total-timesteps") + 2:]]
-    first = sweep_file(tmp_path / "first.toml", {"dr": ["plr.py", *short, "--replay-prob", "0"]})
-    assert sweep(first, "--workdir", str(tmp_path)).returncode == 0
-    (run,) = (tmp_path / "runs").glob("maze__dr__1__*")
-    longer = sweep_file(tmp_path / "longer.toml", {"dr": ["plr.py", *short[:short.index("--total-timesteps")], "--total-timesteps", "1024",
-                                                          "--milestones", "512", "1024", "--replay-prob", "0"]})
-    result = sweep(longer, "--workdir", str(tmp_path))
-    assert result.returncode == 0 and f"resumed {run}" in result.stdout, result.stdout + result.stderr
-    assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 9))  # 1024 / 128 updates, once each
-    assert {"eval.json", "eval_512.json", "eval_1024.json"} <= set(os.listdir(run))
-    assert json.loads((run / "args.json").read_text())["total_timesteps"] == 1024
-    again = sweep(first, "--workdir", str(tmp_path))
-    assert again.returncode == 0 and "finished earlier" in again.stdout
-
-    (run / "eval.json").unlink()  # as a run continued further would be, until its new end
-    collected = tmp_path / "results"
-    assert sweep(longer, "--workdir", str(tmp_path), "--collect", str(collected)).returncode == 0
-    assert sorted(os.listdir(collected / "dr" / "1")) == ["args.json", "eval_1024.json", "eval_512.json", "levels.png", "metrics.csv"]
 
 
 def test_a_run_ended_below_the_files_budget_is_collected_as_going_on(tmp_path):

@@ -1,13 +1,15 @@
-"""The sweep launcher (results/sweep.py) stopping runs: the timeout bounds each run, not its lane, and a
-run stopped by a signal (as stopping the sweep stops it) ends its lane. The queue: test_sweep.py."""
+"""The sweep launcher (results/sweep.py) stopping and continuing runs: the timeout bounds each run, not its
+lane; a run stopped by a signal (as stopping the sweep stops it) ends its lane; a sweep file that raises a
+finished run's budget continues it. The queue: test_sweep.py; resuming a killed sweep: test_sweep_resume.py."""
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
 
-from sweep_runs import LONG, ROOT, sweep, sweep_file
+from sweep_runs import LONG, ROOT, TINY, metric_rows, sweep, sweep_file
 
 
 def test_the_timeout_applies_to_each_run(tmp_path):
@@ -39,3 +41,28 @@ def test_a_run_killed_by_a_signal_ends_its_lane(tmp_path):
     output, _ = process.communicate(timeout=120)
     assert process.returncode == 1 and "stopped by signal 15" in output, output
     assert not (tmp_path / "logs" / "second_1.log").exists()
+
+
+def test_a_sweep_file_that_raises_the_budget_continues_its_finished_runs(tmp_path):
+    """A finished DR run of 512 steps; the same sweep with a budget of 1024 and milestones continues it
+    (it is not skipped as finished, nor started anew) to 1024, where its first end's evaluation is kept as
+    eval_512.json; a third launch with the old budget skips it. Collecting a run still going copies its
+    milestones so far and no eval.json."""
+    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "512", *TINY[TINY.index("--total-timesteps") + 2:]]
+    first = sweep_file(tmp_path / "first.toml", {"dr": ["plr.py", *short, "--replay-prob", "0"]})
+    assert sweep(first, "--workdir", str(tmp_path)).returncode == 0
+    (run,) = (tmp_path / "runs").glob("maze__dr__1__*")
+    longer = sweep_file(tmp_path / "longer.toml", {"dr": ["plr.py", *short[:short.index("--total-timesteps")], "--total-timesteps", "1024",
+                                                          "--milestones", "512", "1024", "--replay-prob", "0"]})
+    result = sweep(longer, "--workdir", str(tmp_path))
+    assert result.returncode == 0 and f"resumed {run}" in result.stdout, result.stdout + result.stderr
+    assert [int(row.split(",")[0]) for row in metric_rows(run)] == list(range(1, 9))  # 1024 / 128 updates, once each
+    assert {"eval.json", "eval_512.json", "eval_1024.json"} <= set(os.listdir(run))
+    assert json.loads((run / "args.json").read_text())["total_timesteps"] == 1024
+    again = sweep(first, "--workdir", str(tmp_path))
+    assert again.returncode == 0 and "finished earlier" in again.stdout
+
+    (run / "eval.json").unlink()  # as a run continued further would be, until its new end
+    collected = tmp_path / "results"
+    assert sweep(longer, "--workdir", str(tmp_path), "--collect", str(collected)).returncode == 0
+    assert sorted(os.listdir(collected / "dr" / "1")) == ["args.json", "eval_1024.json", "eval_512.json", "levels.png", "metrics.csv"]
