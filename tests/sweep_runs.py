@@ -10,10 +10,16 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # 6 updates of 4 copies x 32 steps; a checkpoint after each, one held-out episode per maze at the end
 TINY = ["--env", "maze", "--num-envs", "4", "--num-steps", "32", "--total-timesteps", "768", "--level-buffer-size", "8",
         "--eval-episodes", "1", "--eval-interval", "1000", "--levels-interval", "4", "--checkpoint-interval", "1"]
-# the same, one update: for tests of the queue, where what a run does does not matter
-ONE_UPDATE = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "128", *TINY[TINY.index("--total-timesteps") + 2:]]
-# the same, to 10M steps: a run that is still going whenever the test stops it
-LONG = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "10000000", *TINY[TINY.index("--total-timesteps") + 2:]]
+
+
+def with_budget(steps: int) -> list[str]:
+    """TINY with another --total-timesteps."""
+    at = TINY.index("--total-timesteps")
+    return [*TINY[:at], "--total-timesteps", str(steps), *TINY[at + 2:]]
+
+
+ONE_UPDATE = with_budget(128)  # for tests of the queue, where what a run does does not matter
+LONG = with_budget(10_000_000)  # a run that is still going whenever the test stops it
 
 
 def sweep_file(path, experiments: dict, seeds=(1,), parallel=1) -> str:

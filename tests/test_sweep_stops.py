@@ -9,7 +9,7 @@ import subprocess
 import sys
 import time
 
-from sweep_runs import LONG, ROOT, TINY, metric_rows, sweep, sweep_file
+from sweep_runs import LONG, ROOT, metric_rows, sweep, sweep_file, with_budget
 
 
 def test_the_timeout_applies_to_each_run(tmp_path):
@@ -48,7 +48,7 @@ def test_a_sweep_file_that_raises_the_budget_continues_its_finished_runs(tmp_pat
     (it is not skipped as finished, nor started anew) to 1024, where its first end's evaluation is kept as
     eval_512.json; a third launch with the old budget skips it. Collecting a run still going copies its
     milestones so far and no eval.json."""
-    short = [*TINY[:TINY.index("--total-timesteps")], "--total-timesteps", "512", *TINY[TINY.index("--total-timesteps") + 2:]]
+    short = with_budget(512)
     first = sweep_file(tmp_path / "first.toml", {"dr": ["plr.py", *short, "--replay-prob", "0"]})
     assert sweep(first, "--workdir", str(tmp_path)).returncode == 0
     (run,) = (tmp_path / "runs").glob("maze__dr__1__*")
