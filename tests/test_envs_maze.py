@@ -471,6 +471,12 @@ def test_render_and_save(tmp_path):
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 1000
     assert not (tmp_path / "levels.png.tmp.png").exists()
+    import matplotlib.pyplot as plt
+
+    grid = plt.imread(str(path))[..., :3] * 255
+    assert grid.shape[1] == 3 * 160  # 1.6 inches per image at 100 dpi
+    shown = [(np.abs(grid - colour).max(-1) < 2).sum() for colour in (grey, green)]
+    assert shown[0] > 3 * 56 * 64 and shown[1] > 3 * 64  # all three rings (56 tiles of 8 x 8) and goals, scaled up
 
 
 # ---------------------------------------------------------------------------------------------------
