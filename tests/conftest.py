@@ -40,9 +40,10 @@ def shared_f1_track_file() -> str:
     return path if os.path.isfile(path) else SHIPPED_F1_TRACKS
 
 
-def f1_track_file(folder, names, stem: str) -> str:
-    """A Formula-1 track file of some circuits of the shipped one, with their frame limits, in the format
-    users supply: folder/<stem>.npz and folder/<stem>_meta.json. Returns the .npz's path."""
+def f1_track_file(folder, names, stem: str, frames: int | None = None) -> str:
+    """A Formula-1 track file of some circuits of the shipped one, with their frame limits (or `frames`
+    for each), in the format users supply: folder/<stem>.npz and folder/<stem>_meta.json. Returns the
+    .npz's path."""
     import json
 
     import numpy as np
@@ -53,7 +54,7 @@ def f1_track_file(folder, names, stem: str) -> str:
     with open(os.path.splitext(shipped)[0] + "_meta.json") as f:
         meta = json.load(f)
     with open(os.path.join(folder, f"{stem}_meta.json"), "w") as f:
-        json.dump({name: meta[name] for name in names}, f)
+        json.dump({name: {**meta[name], **({"max_episode_frames": frames} if frames else {})} for name in names}, f)
     return os.path.join(folder, f"{stem}.npz")
 
 

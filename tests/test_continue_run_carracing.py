@@ -6,7 +6,8 @@ import pytest
 from conftest import f1_track_file
 from test_continue_run import CURATOR, check_continued, play
 
-# CarRacing's held-out and validation levels here: the vanilla track and Italy (a track file of it alone).
+# CarRacing's held-out and validation levels here: the vanilla track and Italy (a track file of it alone, cut to
+# 100 frames).
 CARRACING = ["--env", "carracing", "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1",
              "--eval-episodes", "1", "--eval-interval", "100", "--checkpoint-interval", "1"]
 # (script, env flags, the script's flags, B: the first part's budget in env steps; 2 updates)
@@ -18,7 +19,7 @@ CASES = {
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory):
-    return play(CASES, tmp_path_factory, ["--f1-tracks", f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy")])
+    return play(CASES, tmp_path_factory, ["--f1-tracks", f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy", frames=100)])
 
 
 @pytest.mark.parametrize("case", list(CASES))

@@ -36,8 +36,9 @@ def run(script, args, cwd):
 
 @pytest.fixture(scope="module")
 def track_file(tmp_path_factory):
-    """Two F1 tracks of the shipped file, with their frame limits, in the format users supply."""
-    return f1_track_file(tmp_path_factory.mktemp("tracks"), TWO_TRACKS, "two")
+    """Two F1 tracks of the shipped file, in the format users supply, each cut to 100 frames (a short
+    evaluation)."""
+    return f1_track_file(tmp_path_factory.mktemp("tracks"), TWO_TRACKS, "two", frames=100)
 
 
 @pytest.mark.parametrize("name", list(SCRIPTS))

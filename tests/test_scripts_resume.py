@@ -31,7 +31,7 @@ CONFIGS = {
 def finished(tmp_path_factory):
     """{(env, "straight" or "killed"): (result, cwd)}; a killed run's result is (finished before the kill,
     the resumed run's result)."""
-    italy = f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy")
+    italy = f1_track_file(tmp_path_factory.mktemp("tracks"), ["Italy"], "italy", frames=100)
     configs = {**CONFIGS, "carracing": [*CONFIGS["carracing"], "--f1-tracks", italy]}
     cwds = {(env, kind): tmp_path_factory.mktemp(f"{env}-{kind}") for env in configs for kind in ("killed", "straight")}
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
