@@ -32,7 +32,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+from envs.runs import (check_env_options, check_student_minibatches, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import SCORE_FUNCTIONS, highest_returns, other_scores, score_true_regret_correlations
 from envs.training_run import TrainingRun
@@ -539,22 +539,10 @@ def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, and check them."""
     if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
         args = resumed_args(Args, args, __file__, budgets=("total_timesteps", "gradient_updates"))
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
+    check_env_options(args)
     student, generators = student_and_generators(args.env, args.resume)
     recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
+    check_student_minibatches(args, recurrent)
     if not 0.0 <= args.replay_prob <= 1.0 or not 0.0 <= args.staleness_coef <= 1.0 or not 0.0 < args.min_fill_ratio <= 1.0:
         fail("--replay-prob and --staleness-coef must be in [0, 1], --min-fill-ratio in (0, 1]")
     if args.temperature <= 0 or args.level_buffer_size < args.num_envs:

@@ -34,7 +34,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+from envs.runs import (check_env_options, check_student_minibatches, env_workers, episode_mean, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                         teacher_rollout_on_device, true_regret_stats)
 from envs.training_run import Timers, TrainingRun
 
@@ -366,13 +366,6 @@ def metric_names(env) -> list[str]:
             "time_teacher_update", "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
 
-def episode_mean(returns_per_level, threshold=None) -> float:
-    flat = [r for rs in returns_per_level for r in rs]
-    if not flat:  # no episode finished: a gap in the curves, not a return of 0
-        return float("nan")
-    return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
-
-
 def metrics_row(env, levels, returns_of: dict, level_regret, teacher_storage: Rollout, stats: dict, timers: Timers, **columns) -> dict:
     """One update's row: `columns` (update, steps...), the students' returns and solved rates, the teacher's
     return and the regret, PPO's statistics of the three agents, the levels' complexity, how well the
@@ -427,25 +420,13 @@ def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, and check them."""
     if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
         args = resumed_args(Args, args, __file__)
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
+    check_env_options(args)
     recurrent = student_and_generators(args.env, args.resume)[0].is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
+    check_student_minibatches(args, recurrent)
     if min(args.teacher_update_epochs, args.teacher_num_minibatches) <= 0:
         fail("--teacher-update-epochs and --teacher-num-minibatches must be positive")
     if recurrent and args.num_envs % args.teacher_num_minibatches != 0:
         fail(f"--num-envs {args.num_envs} does not divide into --teacher-num-minibatches {args.teacher_num_minibatches}")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
     if min(args.student_ent_coef, args.teacher_ent_coef) < 0:
         fail("entropy coefficients must be >= 0")
     if args.bc_coef < 0 or args.bc_interval < 1:

@@ -38,7 +38,7 @@ import torch.nn as nn
 import envs
 from envs.evaluation import to_torch
 from envs.normalize import ReturnNormalizer
-from envs.runs import (check_track_file, env_workers, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
+from envs.runs import (check_env_options, check_student_minibatches, env_workers, episode_mean, fail, parse_command_line, resumed_args, rollouts_on_device, select_device, student_and_generators, student_class,
                        true_regret_stats)
 from envs.scores import (SCORE_FUNCTIONS, ended_at_rollout_end, episode_means, highest_returns, other_scores,
                          score_true_regret_correlations)
@@ -490,13 +490,6 @@ def metric_names(env) -> list[str]:
             *(f"{name}_{stat}" for name in ("protagonist", "antagonist") for stat in PPO_STATS), "kl_protagonist", "kl_antagonist", "val_solved_rate", "val_return"]
 
 
-def episode_mean(returns_per_level, threshold=None) -> float:
-    flat = [r for rs in returns_per_level for r in rs]
-    if not flat:  # no episode finished: a gap in the curves, not a return of 0
-        return float("nan")
-    return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
-
-
 def metrics_row(env, buffer: LevelBuffer, levels, played, returns_of: dict, regrets, scores_of: dict, scores, stats: dict,
                 **columns) -> dict:
     """One update's row: `columns` (update, steps...), both students' returns and solved rates on the
@@ -565,22 +558,10 @@ def resolve_args(args: Args) -> Args:
     """Load a resumed run's arguments, and check them."""
     if args.resume is not None:  # its saved options; the command line may give a longer budget and other milestones
         args = resumed_args(Args, args, __file__)
-    if args.env not in envs.REGISTRY:
-        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
-    check_track_file(args)
+    check_env_options(args)
     student, generators = student_and_generators(args.env, args.resume)
     recurrent = student.is_recurrent  # an LSTM trains on whole rollouts: minibatches of env copies
-    if args.track:
-        try:
-            import wandb  # noqa: F401
-        except ImportError:
-            fail("--track needs Weights and Biases: pip install wandb")
-    if min(args.num_envs, args.num_minibatches) <= 0:
-        fail("--num-envs and --num-minibatches must be positive")
-    if recurrent and args.num_envs % args.num_minibatches != 0:
-        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
-    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
-        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
+    check_student_minibatches(args, recurrent)
     if args.generator not in generators:
         fail(f"--generator {args.generator!r} does not exist for {args.env}: choose one of {', '.join(generators)}")
     if args.student_ent_coef < 0:

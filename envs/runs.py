@@ -66,9 +66,12 @@ def parse_command_line(args_class, paper_args, default_deciding: dict, descripti
     return args
 
 
-def check_track_file(args) -> None:
-    """CarRacing's held-out Formula-1 tracks: check the file before any work, and hand its path to
-    `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from there)."""
+def check_env_options(args) -> None:
+    """A script's first checks: a known --env; CarRacing's held-out Formula-1 tracks, whose file is read
+    before any work and handed to `envs` through $CLEANUED_F1_TRACKS (the evaluation's envs read it from
+    there); and Weights and Biases, with --track."""
+    if args.env not in envs.REGISTRY:
+        fail(f"unknown --env {args.env!r}: choose one of {', '.join(envs.REGISTRY)}")
     if args.f1_tracks is not None and args.env != "carracing":
         fail("--f1-tracks applies to --env carracing only")
     path = args.f1_tracks or os.environ.get("CLEANUED_F1_TRACKS")
@@ -81,6 +84,22 @@ def check_track_file(args) -> None:
             except ValueError as error:
                 fail(str(error))
         os.environ["CLEANUED_F1_TRACKS"] = path
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            fail("--track needs Weights and Biases: pip install wandb")
+
+
+def check_student_minibatches(args, recurrent: bool) -> None:
+    """The students' batch splits into --num-minibatches: an LSTM's by env copies (whole rollouts), a
+    feed-forward net's by steps."""
+    if min(args.num_envs, args.num_minibatches) <= 0:
+        fail("--num-envs and --num-minibatches must be positive")
+    if recurrent and args.num_envs % args.num_minibatches != 0:
+        fail(f"--num-envs {args.num_envs} does not divide into --num-minibatches {args.num_minibatches}")
+    if not recurrent and (args.num_envs * args.num_steps) % args.num_minibatches != 0:
+        fail(f"the batch of {args.num_envs} x {args.num_steps} steps does not divide into --num-minibatches {args.num_minibatches}")
 
 
 def options_given(names) -> list[str]:
@@ -354,6 +373,15 @@ def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
     if ranks_a.std() == 0 or ranks_b.std() == 0:
         return float("nan")
     return float(np.corrcoef(ranks_a, ranks_b)[0, 1])
+
+
+def episode_mean(returns_per_level, threshold=None) -> float:
+    """The mean return of the episodes finished on a batch of levels (returns per level), or with a
+    threshold the share above it: the solved rate. No finished episode: NaN, a gap in the curves, not 0."""
+    flat = [r for rs in returns_per_level for r in rs]
+    if not flat:
+        return float("nan")
+    return float(np.mean(np.array(flat) > threshold)) if threshold is not None else float(np.mean(flat))
 
 
 def true_regret_stats(optimal: np.ndarray | None, returns_per_level, scores: np.ndarray) -> dict:
