@@ -1,6 +1,8 @@
 """Every relative link of the committed Markdown pages points at a file of the repository, and every
 `page.md#section` link at a heading of that page, as GitHub names headings' anchors. A page's heading
-renamed (a campaign's "(in progress)" dropped) breaks the links to it; this test names them."""
+renamed (a campaign's "(in progress)" dropped) breaks the links to it; this test names them. A link to a
+line of code, [`name`, file.py:N](file.py#LN), must still land on the line that defines or assigns `name`: code moved
+above it shifts the line."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import subprocess
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 HEADING = re.compile(r"^#{1,6} +(.+?) *#* *$")
+CODE_LINE_LINK = re.compile(r"\[`([^`]+)`, ([^\]:]+):(\d+)\]\(([^)#\s]+)#L(\d+)\)")
 
 
 def anchor(heading: str) -> str:
@@ -70,3 +73,35 @@ def test_every_relative_link_of_the_pages_points_at_a_file_and_a_heading():
     renamed = "# cleanued\n[the page](results/README.md#past-the-collapse-point-3m-and-55m-steps)\n"
     assert broken_links("README.md", renamed) == [
         "README.md: (results/README.md#past-the-collapse-point-3m-and-55m-steps) names no heading of results/README.md"]
+
+
+def stale_code_line_links(page: str, markdown: str) -> list[str]:
+    """The links of a page to a line of code whose text and anchor disagree, or whose line no longer holds the
+    name it is given."""
+    stale = []
+    for name, shown_path, shown_line, path, line in CODE_LINE_LINK.findall(markdown):
+        linked = os.path.normpath(os.path.join(os.path.dirname(page), path))
+        if linked != os.path.normpath(shown_path) or shown_line != line:
+            stale.append(f"{page}: [{name}, {shown_path}:{shown_line}] links to {linked}#L{line}")
+            continue
+        with open(os.path.join(ROOT, linked)) as f:
+            lines = f.read().splitlines()
+        defines = re.compile(rf"\s*(def |class )?{re.escape(name)}\s*[(:=]")  # def, class, field or assignment
+        if not (0 < int(line) <= len(lines) and defines.match(lines[int(line) - 1])):
+            holding = [i + 1 for i, text in enumerate(lines) if defines.match(text)]
+            stale.append(f"{page}: {linked}:{line} does not define {name} (lines that do: {holding[:3]})")
+    return stale
+
+
+def test_every_link_to_a_line_of_code_lands_on_its_name():
+    pages = subprocess.run(["git", "ls-files", "*.md"], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    stale, links = [], 0
+    for page in pages:
+        with open(os.path.join(ROOT, page)) as f:
+            markdown = f.read()
+        links += len(CODE_LINE_LINK.findall(markdown))
+        stale += stale_code_line_links(page, markdown)
+    assert links >= 20
+    assert not stale, "; ".join(stale)
+    moved = "[`resolve_args`, plr.py:1](plr.py#L1)\n[`Args`, plr.py:2](plr.py#L3)\n"
+    assert len(stale_code_line_links("README.md", moved)) == 2
