@@ -141,3 +141,16 @@ def test_eval_episodes_0_is_taken_and_a_negative_count_or_milestones_with_it_ref
             script.resolve_args(parsed(script, argv, monkeypatch))
         assert_one_error_line(exit_info.value.code, capsys.readouterr().err, ["--eval-episodes", "--milestones"])
     assert script.resolve_args(parsed(script, ["--eval-episodes", "1", "--milestones", "1000"], monkeypatch)).milestones == (1000,)
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=IDS)
+@pytest.mark.parametrize("env, options, names", [
+    ("maze", {"num_envs": 30, "num_minibatches": 4}, ["--num-envs 30", "--num-minibatches 4"]),  # an LSTM: by env copies
+    ("walker", {"num_envs": 3, "num_steps": 5, "num_minibatches": 2}, ["3 x 5 steps", "--num-minibatches 2"]),  # feed-forward: by steps
+    ("maze", {"num_minibatches": 0}, ["--num-minibatches must be positive"]),
+])
+def test_a_student_batch_that_does_not_split_into_its_minibatches_is_refused(script, env, options, names, capsys):
+    """Every script's resolve_args checks the students' minibatch split (envs/runs.py's check_student_minibatches)."""
+    with pytest.raises(SystemExit) as exit_info:
+        script.resolve_args(script.paper_args(env, **options))
+    assert_one_error_line(exit_info.value.code, capsys.readouterr().err, names)
