@@ -14,7 +14,8 @@ left stale by a new run fails here. What the pages must keep to, to be checked:
 - A table whose first column is "course", "circuit" or "maze" states, per level, an experiment's mean in
   its named column and the published one in a column "reference ..." or "paper ...".
 - In prose, every "mean ± s.e." must be one of the committed or published means with its standard error,
-  and every number in bold one of the committed means, seeds' means or (returns only) levels' means.
+  one of the named experiment's where its name goes right before it ("PAIRED's 504.3 ± 33.2"), and every
+  number in bold one of the committed means, seeds' means or (returns only) levels' means.
 
 A stated number agrees with a committed one when it is that number rounded to the digits it shows.
 """
@@ -39,6 +40,10 @@ EVAL_METRIC = {"mean_solved_rate": "solved_rate", "mean_return": "mean_return"}
 NAMES = {name: key for key, name in EXPERIMENTS.items()}
 NUMBER = r"-?\d[\d,]*(?:\.\d+)?"
 PAIR = re.compile(rf"({NUMBER}) ± ({NUMBER})")
+# A pair that follows an experiment's name ("PAIRED+BiBC+HiEnt 0.30 ± 0.04", "PAIRED's **504.3 ± 33.2**") is that
+# experiment's; the longest name first, so that "PAIRED" is not read out of "PAIRED+HiEnt"
+NAMED_PAIR = re.compile(r"(?<![\w+])(" + "|".join(re.escape(name) for name in sorted(NAMES, key=len, reverse=True))
+                        + rf")(?:'s)?:? (?:\*\*)?({NUMBER}) ± ({NUMBER})")
 BOLD = re.compile(rf"\*\*({NUMBER})(?: ± {NUMBER})?\*\*")
 BUDGET = re.compile(r"(\d+(?:\.\d+)?)M")
 NOTHING_YET = ("–", "running")
@@ -91,13 +96,14 @@ class Campaign:
             return None if mean is None else (mean, None, 1)
         return entry[self.key], entry["se"], len(entry["seeds"])
 
-    def pairs(self) -> list[tuple[float, float]]:
-        """Every (mean, standard error) the summaries and the published numbers hold."""
-        found = [(s[self.key], s["se"]) for s in self.main.values()]
-        for entry in self.long.values():
-            for milestones in (entry["milestones"], entry.get("earlier_campaign", {})):
+    def pairs(self, name: str | None = None) -> list[tuple[float, float]]:
+        """Every (mean, standard error) the summaries and the published numbers hold (of one experiment's)."""
+        found = [(s[self.key], s["se"]) for key, s in self.main.items() if name in (None, key)]
+        for key, entry in self.long.items():
+            for milestones in (entry["milestones"], entry.get("earlier_campaign", {})) if name in (None, key) else ():
                 found += [(m[self.key], m["se"]) for m in milestones.values()]
-        published = [published_mean(self.folder, name) for name in PAPER_NUMBERS[self.folder]["experiments"]]
+        published = [published_mean(self.folder, key)
+                     for key in PAPER_NUMBERS[self.folder]["experiments"] if name in (None, key)]
         return found + [pair for pair in published if pair is not None and pair[1] is not None]
 
     def scalars(self) -> list[float]:
@@ -242,6 +248,9 @@ def check_prose(lines: list[str], campaigns: list[Campaign]) -> list[str]:
         for value in BOLD.findall(line):
             if not any(agrees(value, committed) for committed in scalars):
                 problems.append(f"'**{value}**' is no committed mean: {line.strip()}")
+    for name, mean, se in NAMED_PAIR.findall(" ".join(line.strip() for line in lines)):  # a name may end a line
+        if not any(agrees(mean, m) and agrees(se, s) for campaign in campaigns for m, s in campaign.pairs(NAMES[name])):
+            problems.append(f"'{name} {mean} ± {se}' is none of {name}'s committed or published results")
     return problems
 
 
@@ -304,5 +313,10 @@ def test_a_stale_number_fails():
     for before, after, problem in edits:
         assert before in page
         assert any(problem in found for found in stale_numbers("results/maze/README.md", page.replace(before, after, 1))), after
+    # another experiment's result (the maze's PAIRED+UniBC+HiEnt is 0.31 ± 0.04) beside this one's name
+    readme = read_page("README.md")
+    assert "PAIRED+BiBC+HiEnt 0.30 ± 0.04" in readme
+    readme = readme.replace("PAIRED+BiBC+HiEnt 0.30 ± 0.04", "PAIRED+BiBC+HiEnt 0.31 ± 0.04")
+    assert any("'PAIRED+BiBC+HiEnt 0.31 ± 0.04' is none of" in found for found in stale_numbers("README.md", readme))
     walker = read_page("results/walker/README.md").replace("| Stairs | -76 |", "| Stairs | -70 |")
     assert any("Stairs, ACCEL: states -70" in found for found in stale_numbers("results/walker/README.md", walker))
