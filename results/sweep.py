@@ -230,8 +230,9 @@ def launch(sweep: dict, jobs: list[dict], cluster: str, workdir: str) -> None:
 def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
     """Copy each finished run's small outputs to DEST/<experiment>/<seed>/ (and seed 1's student weights),
     and those of a run still going that has passed a milestone: its args.json, its metrics.csv so far and
-    its milestones' evaluations (a finished run's eval.json copied earlier is removed: the run goes on). A
-    run that ended at a budget below the file's (to be continued to it) is still going."""
+    its milestones' evaluations. A run that ended at a budget below the file's (to be continued to it) is
+    still going. The seed's folder keeps only this run's evaluations: an eval.json copied before the run
+    went on, and those of an earlier run of the seed (lost and run again), are removed."""
     import torch
 
     from envs.runs import good_checkpoint
@@ -247,8 +248,10 @@ def collect(sweep: dict, jobs: list[dict], destination: str) -> None:
         os.makedirs(target, exist_ok=True)
         for name in ("args.json", "metrics.csv", *(["eval.json"] if ended else [])):
             shutil.copy(os.path.join(run, name), target)
-        if not ended and os.path.isfile(os.path.join(target, "eval.json")):
-            os.remove(os.path.join(target, "eval.json"))
+        this_runs = {os.path.basename(path) for path in milestones} | ({"eval.json"} if ended else set())
+        for earlier in glob.glob(os.path.join(target, "eval*.json")):
+            if os.path.basename(earlier) not in this_runs:
+                os.remove(earlier)
         for milestone in milestones:
             shutil.copy(milestone, target)
         images = glob.glob(os.path.join(run, "levels_*.png"))

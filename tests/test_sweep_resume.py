@@ -1,6 +1,7 @@
 """The sweep launcher (results/sweep.py) resuming and collecting: a 2-run sweep of tiny runs, one run killed
-mid-way and resumed by launching the sweep again, then collected; collecting a run still going. The queue
-itself: test_sweep.py; stopping runs and continuing finished ones: test_sweep_stops.py."""
+mid-way and resumed by launching the sweep again, then collected; collecting a run still going, and a seed
+run again after its first run was lost. The queue itself: test_sweep.py; stopping runs and continuing
+finished ones: test_sweep_stops.py."""
 
 import json
 import os
@@ -66,3 +67,22 @@ def test_a_run_ended_below_the_files_budget_is_collected_as_going_on(tmp_path):
     result = sweep(path, "--workdir", str(tmp_path / "work"), "--collect", str(tmp_path / "out"))
     assert result.returncode == 0, result.stderr
     assert sorted(os.listdir(tmp_path / "out" / "accel" / "1")) == ["args.json", "eval_10.json", "metrics.csv"]
+
+
+def test_a_seed_run_again_replaces_the_earlier_runs_evaluations(tmp_path):
+    """The seed's folder holds the evaluations at 10 and 20 of a run since lost; its rerun, now past 10, is
+    collected: the earlier run's evaluation at 20 goes, so that the folder is one run's. Fails if it stays."""
+    run = tmp_path / "work" / "runs" / "maze__accel__1__200"
+    run.mkdir(parents=True)
+    (run / "args.json").write_text(json.dumps({"env": "maze", "total_timesteps": 50}))
+    for name in ("eval_10.json", "metrics.csv"):
+        (run / name).write_text('{"run": "again"}')
+    target = tmp_path / "out" / "accel" / "1"
+    target.mkdir(parents=True)
+    for name in ("eval_10.json", "eval_20.json", "metrics.csv"):
+        (target / name).write_text('{"run": "lost"}')
+    path = sweep_file(tmp_path / "sweep.toml", {"accel": ["accel.py", "--env", "maze", "--total-timesteps", "50", "--milestones", "10", "20", "50"]})
+    result = sweep(path, "--workdir", str(tmp_path / "work"), "--collect", str(tmp_path / "out"))
+    assert result.returncode == 0, result.stderr
+    assert sorted(os.listdir(target)) == ["args.json", "eval_10.json", "metrics.csv"]
+    assert (target / "eval_10.json").read_text() == '{"run": "again"}'
